@@ -1,0 +1,1 @@
+"""benchmarks package (see ../shared/DESIGN.md §1)."""

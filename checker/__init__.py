@@ -1,0 +1,1 @@
+"""checker package (see ../shared/DESIGN.md §1)."""

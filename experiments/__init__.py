@@ -1,0 +1,1 @@
+"""experiments package (see ../shared/DESIGN.md §1)."""

@@ -1,0 +1,78 @@
+"""MiniGrid's classic levels with the same layout distributions and defaults.
+
+Each ``generate`` mirrors the ``_gen_grid`` of the MiniGrid class it names; the comments
+quote the MiniGrid call each line reproduces. Layout-distribution tests compare many resets
+against MiniGrid's own generator.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxgrid import grid as G
+from jaxgrid.constants import DOOR, GOAL_CELL, KEY, LAVA_CELL, LOCKED, WALL_CELL, YELLOW
+from jaxgrid.environment import Environment
+from jaxgrid.types import State
+
+
+class Empty(Environment):
+    """``EmptyEnv``: a walled room with the goal in the bottom-right corner.
+
+    ``random_start=False`` puts the agent at (1, 1) facing right (``MiniGrid-Empty-NxN``);
+    ``True`` places it uniformly with a random direction (``MiniGrid-Empty-Random-NxN``).
+    MiniGrid builds this level with ``see_through_walls=True``.
+    """
+
+    random_start: bool = struct.field(pytree_node=False, default=False)
+
+    def generate(self, key: jax.Array) -> State:
+        key, k_pos, k_dir = jax.random.split(key, 3)
+        grid = jnp.asarray(G.room(self.width, self.height))
+        grid = G.put(grid, (self.width - 2, self.height - 2), GOAL_CELL)
+        if self.random_start:  # place_agent(): any empty cell, random direction
+            pos = G.sample_cell(k_pos, G.is_empty(grid))
+            direction = jax.random.randint(k_dir, (), 0, 4)
+        else:
+            pos, direction = jnp.array([1, 1]), 0
+        return self.init_state(grid, pos, direction, key)
+
+
+class DoorKey(Environment):
+    """``DoorKeyEnv``: a locked yellow door in a random wall, its key on the agent's side."""
+
+    def generate(self, key: jax.Array) -> State:
+        key, k_split, k_agent, k_dir, k_door, k_key = jax.random.split(key, 6)
+        w, h = self.width, self.height
+        xs, _ = G.coords(w, h)
+        grid = jnp.asarray(G.room(w, h))
+        grid = G.put(grid, (w - 2, h - 2), GOAL_CELL)  # put_obj(Goal(), w - 2, h - 2)
+        split = jax.random.randint(k_split, (), 2, w - 2)  # _rand_int(2, width - 2)
+        grid = jnp.where((xs == split)[..., None], jnp.asarray(WALL_CELL), grid)  # vert_wall
+        left = jnp.asarray(xs) < split
+        agent = G.sample_cell(k_agent, left & G.is_empty(grid))  # place_agent(size=(split, h))
+        direction = jax.random.randint(k_dir, (), 0, 4)
+        door_y = jax.random.randint(k_door, (), 1, w - 2)  # _rand_int(1, width - 2)
+        grid = G.put(grid, (split, door_y), G.cell(DOOR, YELLOW, LOCKED))
+        free = left & G.is_empty(grid)
+        free = free.at[agent[0], agent[1]].set(False)  # place_obj never lands on the agent
+        key_pos = G.sample_cell(k_key, free)
+        grid = G.put(grid, key_pos, G.cell(KEY, YELLOW, 0))
+        return self.init_state(grid, agent, direction, key)
+
+
+class LavaGap(Environment):
+    """``LavaGapEnv``: a vertical lava strip with a one-cell gap; agent at (1, 1) facing right."""
+
+    def generate(self, key: jax.Array) -> State:
+        key, k_x, k_y = jax.random.split(key, 3)
+        w, h = self.width, self.height
+        xs, ys = G.coords(w, h)
+        grid = jnp.asarray(G.room(w, h))
+        grid = G.put(grid, (w - 2, h - 2), GOAL_CELL)
+        gap_x = jax.random.randint(k_x, (), 2, w - 2)  # _rand_int(2, width - 2)
+        gap_y = jax.random.randint(k_y, (), 1, h - 1)  # _rand_int(1, height - 1)
+        strip = (xs == gap_x) & (ys >= 1) & (ys < h - 1) & (ys != gap_y)
+        grid = jnp.where(strip[..., None], jnp.asarray(LAVA_CELL), grid)
+        return self.init_state(grid, jnp.array([1, 1]), 0, key)

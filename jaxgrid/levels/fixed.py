@@ -1,0 +1,47 @@
+"""A level whose every episode starts from one fixed state (ASCII maps, converted MiniGrid envs)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxgrid.environment import Environment
+from jaxgrid.types import State
+
+
+class FixedLevel(Environment):
+    """Resets to the same grid, agent pose and carried object every time.
+
+    The layout is stored as static bytes so the environment stays hashable; build one with
+    :func:`jaxgrid.ascii.from_ascii` or :func:`jaxgrid.compat.from_minigrid` rather than by hand.
+    ``agent_dir=-1`` draws a random direction at each reset.
+    """
+
+    layout: bytes = struct.field(pytree_node=False, default=b"")
+    agent_start: tuple[int, int] = struct.field(pytree_node=False, default=(1, 1))
+    agent_dir: int = struct.field(pytree_node=False, default=0)
+    carrying: tuple[int, int, int] = struct.field(pytree_node=False, default=(1, 0, 0))
+
+    def __post_init__(self):
+        super().__post_init__()
+        if len(self.layout) != self.width * self.height * 3:
+            raise ValueError(
+                f"FixedLevel.layout holds {len(self.layout)} bytes, expected width*height*3 = "
+                f"{self.width * self.height * 3}"
+            )
+
+    @property
+    def grid(self) -> np.ndarray:
+        """The start grid as uint8 ``(W, H, 3)``."""
+        return np.frombuffer(self.layout, np.uint8).reshape(self.width, self.height, 3)
+
+    def generate(self, key: jax.Array) -> State:
+        key, k_dir = jax.random.split(key)
+        if self.agent_dir < 0:
+            direction = jax.random.randint(k_dir, (), 0, 4)
+        else:
+            direction = self.agent_dir
+        state = self.init_state(self.grid, self.agent_start, direction, key)
+        return state.replace(carrying=jnp.asarray(self.carrying, jnp.uint8))

@@ -1,0 +1,77 @@
+"""``make(id)``: environment ids, MiniGrid's own names for the classic levels."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+from jaxgrid.environment import Environment
+from jaxgrid.levels import DoorKey, Empty, LavaGap
+
+
+def _empty(size: int, random_start: bool = False) -> Callable[[], Environment]:
+    # EmptyEnv: max_steps 4 * size**2, see_through_walls=True.
+    return lambda: Empty(
+        width=size, height=size, max_steps=4 * size**2, see_through_walls=True,
+        random_start=random_start,
+    )
+
+
+def _doorkey(size: int) -> Callable[[], Environment]:
+    # DoorKeyEnv: max_steps 10 * size**2, see_through_walls=False.
+    return lambda: DoorKey(width=size, height=size, max_steps=10 * size**2)
+
+
+def _lavagap(size: int) -> Callable[[], Environment]:
+    # LavaGapEnv: max_steps 4 * size**2, see_through_walls=False.
+    return lambda: LavaGap(width=size, height=size, max_steps=4 * size**2)
+
+
+_BUILTIN: dict[str, Callable[[], Environment]] = {
+    **{f"MiniGrid-Empty-{n}x{n}-v0": _empty(n) for n in (5, 6, 8, 16)},
+    **{f"MiniGrid-Empty-Random-{n}x{n}-v0": _empty(n, True) for n in (5, 6)},
+    **{f"MiniGrid-DoorKey-{n}x{n}-v0": _doorkey(n) for n in (5, 6, 8, 16)},
+    **{f"MiniGrid-LavaGapS{n}-v0": _lavagap(n) for n in (5, 6, 7)},
+}
+_USER: dict[str, Callable[[], Environment]] = {}
+
+
+def register(env_id: str, factory: Callable[[], Environment], *, overwrite: bool = False):
+    """Register ``factory`` (a zero-argument callable returning an env) under ``env_id``."""
+    if not overwrite and env_id in registered_ids():
+        raise ValueError(f"environment id {env_id!r} is already registered")
+    _USER[env_id] = factory
+
+
+def _table() -> dict[str, Callable[[], Environment]]:
+    table = dict(_BUILTIN)
+    table.update(_USER)
+    return table
+
+
+def registered_ids() -> list[str]:
+    """All ids ``make`` accepts, sorted."""
+    return sorted(_table())
+
+
+def make(env_id: str, **overrides) -> Environment:
+    """Build the environment registered as ``env_id``.
+
+    ``overrides`` replace configuration fields, e.g. ``make("MiniGrid-DoorKey-8x8-v0",
+    view_size=5, max_steps=100)``. An unknown id or field raises ``ValueError``.
+    """
+    table = _table()
+    if env_id not in table:
+        raise ValueError(
+            f"unknown environment id {env_id!r}; registered ids: {', '.join(sorted(table))}"
+        )
+    env = table[env_id]()
+    if overrides:
+        fields = {f.name for f in dataclasses.fields(env)}
+        unknown = sorted(set(overrides) - fields)
+        if unknown:
+            raise ValueError(
+                f"{env_id} has no setting {unknown[0]!r}; settings: {', '.join(sorted(fields))}"
+            )
+        env = env.replace(**overrides)
+    return env
