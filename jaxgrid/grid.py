@@ -34,19 +34,44 @@ def is_empty(grid: jax.Array) -> jax.Array:
     return grid[..., 0] == EMPTY
 
 
-def sample_cell(key: jax.Array, allowed: jax.Array) -> jax.Array:
-    """Uniform ``(x, y)`` among the ``True`` cells of ``allowed`` (``(W, H)`` bool).
+def randint(u: jax.Array, low, high) -> jax.Array:
+    """Integer in ``[low, high)`` from a uniform ``u`` in ``[0, 1)`` (MiniGrid's ``_rand_int``)."""
+    n = high - low
+    return low + jnp.minimum(jnp.floor(u * n).astype(jnp.int32), n - 1)
 
-    MiniGrid's ``place_obj`` rejection-samples uniformly over a rectangle until it hits a valid
-    cell; that is exactly the uniform distribution over valid cells, which an argmax of
-    masked uniform noise draws in one shot. ``allowed`` must contain at least one cell.
+
+def sample_cell(u: jax.Array, allowed: jax.Array) -> jax.Array:
+    """Uniform ``(x, y)`` among the ``True`` cells of ``allowed`` (``(W, H)`` bool), from ``u``.
+
+    MiniGrid's ``place_obj`` rejection-samples a rectangle until it hits a valid cell, which
+    is the uniform distribution over valid cells. We pick the ``floor(u * count)``-th valid
+    cell in two levels (column, then row): two short cumsums instead of one noise draw per
+    cell, since random bits dominate the cost of a reset. ``allowed`` must not be all False.
     """
-    height = allowed.shape[1]
-    noise = jax.random.uniform(key, allowed.shape)
-    flat = jnp.argmax(jnp.where(allowed, noise, -1.0).reshape(-1))
-    return jnp.stack([flat // height, flat % height]).astype(jnp.int32)
+    counts = jnp.sum(allowed, axis=1, dtype=jnp.int32)  # valid cells per column x
+    cum = jnp.cumsum(counts)
+    r = jnp.minimum(jnp.floor(u * cum[-1]).astype(jnp.int32), cum[-1] - 1)
+    x = jnp.argmax(cum > r)
+    r = r - (cum[x] - counts[x])
+    column = jnp.sum(  # allowed[x] as a select-sum: no gather under vmap
+        jnp.where((jnp.arange(allowed.shape[0]) == x)[:, None], allowed, False),
+        axis=0, dtype=jnp.int32,
+    )
+    y = jnp.argmax(jnp.cumsum(column) > r)
+    return jnp.stack([x, y]).astype(jnp.int32)
 
 
-def put(grid: jax.Array, pos: jax.Array, value) -> jax.Array:
-    """``grid`` with ``grid[pos] = value`` (scatter; meant for reset-time layout building)."""
-    return grid.at[pos[0], pos[1]].set(jnp.asarray(value, dtype=grid.dtype))
+def at(shape: tuple[int, int], pos) -> jax.Array:
+    """bool ``(W, H)``, True at ``pos`` only."""
+    xs, ys = coords(*shape)
+    return (xs == pos[0]) & (ys == pos[1])
+
+
+def put(grid: jax.Array, pos, value) -> jax.Array:
+    """``grid`` with ``grid[pos] = value``.
+
+    A select over the whole grid rather than a scatter: scatters under ``vmap`` are slow on
+    CPU and a grid is only a few hundred bytes.
+    """
+    value = jnp.asarray(value, dtype=grid.dtype)
+    return jnp.where(at(grid.shape[:2], pos)[..., None], value, grid)

@@ -19,7 +19,7 @@ import numpy as np
 from jaxgrid.constants import CLOSED, DIR_TO_VEC, DOOR, LOCKED, WALL, WALL_CELL
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def view_offsets(view_size: int) -> np.ndarray:
     """int32 ``(4, V, V, 2)``: world offset of view cell ``[i, j]`` for each direction."""
     v = view_size
@@ -34,7 +34,7 @@ def view_offsets(view_size: int) -> np.ndarray:
 
 
 def view_cells(grid: jax.Array, agent_pos: jax.Array, agent_dir: jax.Array, view_size: int):
-    """The un-occluded ``(V, V, 3)`` window of ``grid`` in the agent's frame (out of grid = wall)."""
+    """Un-occluded ``(V, V, 3)`` window of ``grid`` in the agent's frame (outside = grey wall)."""
     width, height = grid.shape[:2]
     xy = agent_pos + jnp.asarray(view_offsets(view_size))[agent_dir]  # (V, V, 2)
     x, y = xy[..., 0], xy[..., 1]
@@ -50,45 +50,79 @@ def see_behind(cells: jax.Array) -> jax.Array:
     return (kind != WALL) & ~((kind == DOOR) & ((state == CLOSED) | (state == LOCKED)))
 
 
+# Views up to this size use a lookup table of every (seeds, transparent) row pair
+# (2**(2V) int32 entries: 64 KiB at V=7, 1 MiB at V=9): one small gather per row instead of
+# ~30 dependent shifts, about 4x faster on CPU.
+LUT_MAX_VIEW = 9
+
+
+def _fill(seeds, transparent, shift, size: int):
+    """Spread ``seeds`` (a row as bits) in ``shift``'s direction through transparent cells.
+
+    A cell passes visibility on to its neighbour only if it is itself transparent, so the
+    neighbour's "door" is ``shift(transparent, 1)``; log-step (Kogge-Stone) doubling covers a
+    row of ``size`` cells in ``ceil(log2(size))`` steps. Works on numpy and JAX integers.
+    """
+    gen, pro = seeds, shift(transparent, 1)
+    k = 1
+    while k < size:
+        gen = gen | (pro & shift(gen, k))
+        pro = pro & shift(pro, k)
+        k *= 2
+    return gen
+
+
+def _row_update(seeds, transparent, size: int):
+    """One row of ``process_vis``: ``(visible bits of this row, seeds of the row above)``.
+
+    The quirks are kept because MiniGrid has them: the left-to-right pass never starts from the
+    last column and the right-to-left pass never from the first, so the first column lights
+    the row above only if it was reached in the left-to-right pass.
+    """
+    full = (1 << size) - 1
+    to_right = lambda x, k: (x << k) & full  # column i -> i + k
+    to_left = lambda x, k: x >> k  # column i -> i - k
+    left = _fill(seeds, transparent, to_right, size)
+    right = _fill(left, transparent, to_left, size)
+    lit_left = left & transparent & (full >> 1)  # left pass visits columns 0 .. V-2
+    lit_right = right & transparent & (full - 1)  # right pass visits columns 1 .. V-1
+    return right, (lit_left | (lit_left << 1) | lit_right | (lit_right >> 1)) & full
+
+
+@functools.cache
+def _row_table(size: int) -> np.ndarray:
+    """int32 ``(2**(2V),)``: entry ``seeds << V | transparent`` packs ``_row_update``'s
+    ``visible | next_seeds << V``."""
+    seeds = np.arange(1 << size, dtype=np.int64)[:, None]
+    transparent = np.arange(1 << size, dtype=np.int64)[None, :]
+    visible, above = _row_update(seeds, transparent, size)
+    return (visible | (above << size)).astype(np.int32).reshape(-1)
+
+
 def visibility_mask(transparent: jax.Array) -> jax.Array:
     """Exact replica of ``minigrid.core.grid.Grid.process_vis`` on a ``(V, V)`` view.
 
-    MiniGrid sweeps rows from the agent's row upwards; in each row a left-to-right pass then a
-    right-to-left pass spread visibility sideways through transparent cells, and each
-    transparent visible cell lights itself and its diagonal neighbours in the row above.
-    The asymmetry is kept on purpose (the leftmost cell lights the row above only if it was
-    reached in the left-to-right pass), because MiniGrid behaves that way. The loops run over
-    the static view size (at most a few dozen tiny elementwise ops), not over data.
+    MiniGrid sweeps rows from the agent's row (``j = V - 1``) upwards; in each row a
+    left-to-right pass then a right-to-left pass spread visibility sideways out of transparent
+    visible cells, and each transparent visible cell lights itself and its diagonal neighbours
+    in the row above. We hold each row as the bits of one int32 (bit ``i`` = column ``i``) and
+    update it by table lookup (or bit shifts for large views). The loop over rows is over the
+    static view size.
     """
     v = transparent.shape[0]
-    rows = []
-    carry = jnp.zeros((v,), bool).at[v // 2].set(True)  # row V-1 starts with the agent only
+    weights = jnp.asarray(1 << np.arange(v), jnp.int32)
+    rows_t = jnp.sum(jnp.where(transparent, weights[:, None], 0), axis=0)  # (V,), row j's bits
+    table = jnp.asarray(_row_table(v)) if v <= LUT_MAX_VIEW else None
+    seeds = jnp.int32(1 << (v // 2))  # the agent's cell
+    rows = [None] * v
     for j in reversed(range(v)):
-        t = transparent[:, j]
-        left = [carry[0]]  # left-to-right pass
-        for i in range(1, v):
-            left.append(carry[i] | (left[i - 1] & t[i - 1]))
-        right = [None] * v  # right-to-left pass
-        right[v - 1] = left[v - 1]
-        for i in reversed(range(v - 1)):
-            right[i] = left[i] | (right[i + 1] & t[i + 1])
-        rows.append(jnp.stack(right))
-        if j == 0:
-            break
-        a = [left[i] & t[i] for i in range(v - 1)]  # lit during the left pass (i <= V-2)
-        b = [None] + [right[i] & t[i] for i in range(1, v)]  # lit during the right pass
-        up = []
-        for k in range(v):
-            lit = []
-            if k <= v - 2:
-                lit.append(a[k])
-            if k >= 1:
-                lit += [a[k - 1], b[k]]
-            if k + 1 <= v - 1:
-                lit.append(b[k + 1])
-            up.append(functools.reduce(jnp.logical_or, lit))
-        carry = jnp.stack(up)
-    return jnp.stack(rows[::-1], axis=1)  # (V, V) indexed [i, j]
+        if table is not None:
+            entry = table[(seeds << v) | rows_t[j]]
+            rows[j], seeds = entry & ((1 << v) - 1), entry >> v
+        else:
+            rows[j], seeds = _row_update(seeds, rows_t[j], v)
+    bits = jnp.stack(rows)  # (V,) indexed j
+    return ((bits[None, :] >> jnp.arange(v, dtype=jnp.int32)[:, None]) & 1).astype(bool)
 
 
 def egocentric_view(
@@ -104,5 +138,8 @@ def egocentric_view(
     if not see_through_walls:
         visible = visibility_mask(see_behind(cells))
         cells = jnp.where(visible[..., None], cells, jnp.zeros_like(cells))
-    # The agent's own cell shows what it carries ((1, 0, 0), empty, when nothing).
-    return cells.at[view_size // 2, view_size - 1].set(carrying)
+    # The agent's own cell shows what it carries ((1, 0, 0), empty, when nothing). A select
+    # with a constant mask, not a scatter: scatters under vmap are slow on CPU.
+    agent_cell = np.zeros((view_size, view_size, 1), bool)
+    agent_cell[view_size // 2, view_size - 1] = True
+    return jnp.where(agent_cell, carrying, cells)

@@ -28,12 +28,13 @@ class Empty(Environment):
     random_start: bool = struct.field(pytree_node=False, default=False)
 
     def generate(self, key: jax.Array) -> State:
-        key, k_pos, k_dir = jax.random.split(key, 3)
+        key, sub = jax.random.split(key)
+        u = jax.random.uniform(sub, (2,))
         grid = jnp.asarray(G.room(self.width, self.height))
         grid = G.put(grid, (self.width - 2, self.height - 2), GOAL_CELL)
         if self.random_start:  # place_agent(): any empty cell, random direction
-            pos = G.sample_cell(k_pos, G.is_empty(grid))
-            direction = jax.random.randint(k_dir, (), 0, 4)
+            pos = G.sample_cell(u[0], G.is_empty(grid))
+            direction = G.randint(u[1], 0, 4)
         else:
             pos, direction = jnp.array([1, 1]), 0
         return self.init_state(grid, pos, direction, key)
@@ -43,21 +44,22 @@ class DoorKey(Environment):
     """``DoorKeyEnv``: a locked yellow door in a random wall, its key on the agent's side."""
 
     def generate(self, key: jax.Array) -> State:
-        key, k_split, k_agent, k_dir, k_door, k_key = jax.random.split(key, 6)
+        key, sub = jax.random.split(key)
+        u = jax.random.uniform(sub, (5,))  # one draw for all: random bits dominate reset cost
         w, h = self.width, self.height
         xs, _ = G.coords(w, h)
         grid = jnp.asarray(G.room(w, h))
         grid = G.put(grid, (w - 2, h - 2), GOAL_CELL)  # put_obj(Goal(), w - 2, h - 2)
-        split = jax.random.randint(k_split, (), 2, w - 2)  # _rand_int(2, width - 2)
+        split = G.randint(u[0], 2, w - 2)  # _rand_int(2, width - 2)
         grid = jnp.where((xs == split)[..., None], jnp.asarray(WALL_CELL), grid)  # vert_wall
         left = jnp.asarray(xs) < split
-        agent = G.sample_cell(k_agent, left & G.is_empty(grid))  # place_agent(size=(split, h))
-        direction = jax.random.randint(k_dir, (), 0, 4)
-        door_y = jax.random.randint(k_door, (), 1, w - 2)  # _rand_int(1, width - 2)
+        agent = G.sample_cell(u[1], left & G.is_empty(grid))  # place_agent(size=(split, h))
+        direction = G.randint(u[2], 0, 4)
+        door_y = G.randint(u[3], 1, w - 2)  # _rand_int(1, width - 2)
         grid = G.put(grid, (split, door_y), G.cell(DOOR, YELLOW, LOCKED))
         free = left & G.is_empty(grid)
-        free = free.at[agent[0], agent[1]].set(False)  # place_obj never lands on the agent
-        key_pos = G.sample_cell(k_key, free)
+        free = free & ~G.at((w, h), agent)  # place_obj never lands on the agent
+        key_pos = G.sample_cell(u[4], free)
         grid = G.put(grid, key_pos, G.cell(KEY, YELLOW, 0))
         return self.init_state(grid, agent, direction, key)
 
@@ -66,13 +68,14 @@ class LavaGap(Environment):
     """``LavaGapEnv``: a vertical lava strip with a one-cell gap; agent at (1, 1) facing right."""
 
     def generate(self, key: jax.Array) -> State:
-        key, k_x, k_y = jax.random.split(key, 3)
+        key, sub = jax.random.split(key)
+        u = jax.random.uniform(sub, (2,))
         w, h = self.width, self.height
         xs, ys = G.coords(w, h)
         grid = jnp.asarray(G.room(w, h))
         grid = G.put(grid, (w - 2, h - 2), GOAL_CELL)
-        gap_x = jax.random.randint(k_x, (), 2, w - 2)  # _rand_int(2, width - 2)
-        gap_y = jax.random.randint(k_y, (), 1, h - 1)  # _rand_int(1, height - 1)
+        gap_x = G.randint(u[0], 2, w - 2)  # _rand_int(2, width - 2)
+        gap_y = G.randint(u[1], 1, h - 1)  # _rand_int(1, height - 1)
         strip = (xs == gap_x) & (ys >= 1) & (ys < h - 1) & (ys != gap_y)
         grid = jnp.where(strip[..., None], jnp.asarray(LAVA_CELL), grid)
         return self.init_state(grid, jnp.array([1, 1]), 0, key)
