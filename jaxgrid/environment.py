@@ -32,7 +32,11 @@ class Environment(struct.PyTreeNode):
 
     # --- to implement -------------------------------------------------------------------
     def generate(self, key: jax.Array) -> State:
-        """Sample a fresh episode's state (layout, agent pose) with ``step_count == 0``."""
+        """Sample a fresh episode's state (layout, agent pose) with ``step_count == 0``.
+
+        ``key`` is spent on the layout alone: callers (:meth:`reset`, ``AutoReset``) replace the
+        returned state's ``key`` with an independent one, which saves a split per reset.
+        """
         raise NotImplementedError
 
     # --- public API -----------------------------------------------------------------------
@@ -42,7 +46,8 @@ class Environment(struct.PyTreeNode):
 
     def reset(self, key: jax.Array) -> tuple[State, TimeStep]:
         """Start an episode: ``(state, timestep)`` with zero reward, not done."""
-        state = self.generate(key)
+        key, layout_key = jax.random.split(key)
+        state = self.generate(layout_key).replace(key=key)
         return state, self.first_timestep(state)
 
     def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:

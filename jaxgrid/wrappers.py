@@ -38,8 +38,8 @@ class AutoReset(struct.PyTreeNode):
 
     def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
         state, ts = self.env.step(state, action)
-        key, reset_key = jax.random.split(state.key)
-        fresh = self.env.generate(reset_key)
+        key, layout_key = jax.random.split(state.key)
+        fresh = self.env.generate(layout_key).replace(key=key)
         done = ts.terminated | ts.truncated
         state = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, state.replace(key=key))
         # One observation of the selected state: the fresh episode's where one began.

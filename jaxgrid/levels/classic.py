@@ -28,8 +28,7 @@ class Empty(Environment):
     random_start: bool = struct.field(pytree_node=False, default=False)
 
     def generate(self, key: jax.Array) -> State:
-        key, sub = jax.random.split(key)
-        u = jax.random.uniform(sub, (2,))
+        u = jax.random.uniform(key, (2,))
         grid = jnp.asarray(G.room(self.width, self.height))
         grid = G.put(grid, (self.width - 2, self.height - 2), GOAL_CELL)
         if self.random_start:  # place_agent(): any empty cell, random direction
@@ -44,8 +43,7 @@ class DoorKey(Environment):
     """``DoorKeyEnv``: a locked yellow door in a random wall, its key on the agent's side."""
 
     def generate(self, key: jax.Array) -> State:
-        key, sub = jax.random.split(key)
-        u = jax.random.uniform(sub, (5,))  # one draw for all: random bits dominate reset cost
+        u = jax.random.uniform(key, (5,))  # one draw for all: random bits dominate reset cost
         w, h = self.width, self.height
         xs, _ = G.coords(w, h)
         grid = jnp.asarray(G.room(w, h))
@@ -68,8 +66,7 @@ class LavaGap(Environment):
     """``LavaGapEnv``: a vertical lava strip with a one-cell gap; agent at (1, 1) facing right."""
 
     def generate(self, key: jax.Array) -> State:
-        key, sub = jax.random.split(key)
-        u = jax.random.uniform(sub, (2,))
+        u = jax.random.uniform(key, (2,))
         w, h = self.width, self.height
         xs, ys = G.coords(w, h)
         grid = jnp.asarray(G.room(w, h))

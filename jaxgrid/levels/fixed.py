@@ -38,9 +38,8 @@ class FixedLevel(Environment):
         return np.frombuffer(self.layout, np.uint8).reshape(self.width, self.height, 3)
 
     def generate(self, key: jax.Array) -> State:
-        key, k_dir = jax.random.split(key)
         if self.agent_dir < 0:
-            direction = jax.random.randint(k_dir, (), 0, 4)
+            direction = jax.random.randint(key, (), 0, 4)
         else:
             direction = self.agent_dir
         state = self.init_state(self.grid, self.agent_start, direction, key)
