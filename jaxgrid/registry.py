@@ -7,6 +7,7 @@ from collections.abc import Callable
 
 from jaxgrid.environment import Environment
 from jaxgrid.levels import DoorKey, Empty, LavaGap
+from jaxgrid.scenarios import ThreeRoomsKey, TwoRooms
 
 
 def _empty(size: int, random_start: bool = False) -> Callable[[], Environment]:
@@ -27,11 +28,22 @@ def _lavagap(size: int) -> Callable[[], Environment]:
     return lambda: LavaGap(width=size, height=size, max_steps=4 * size**2)
 
 
+def _scenarios() -> dict[str, Callable[[], Environment]]:
+    # The paper's scenarios: 5x5 view, see_through_walls=False (DESIGN.md §4).
+    two = dict(width=9, height=7, max_steps=100, view_size=5)
+    return {
+        "TwoRooms-v0": lambda: TwoRooms(**two),
+        "TwoRoomsLava-v0": lambda: TwoRooms(**two, has_lava=True),
+        "ThreeRoomsKey-v0": lambda: ThreeRoomsKey(width=13, height=7, max_steps=150, view_size=5),
+    }
+
+
 _BUILTIN: dict[str, Callable[[], Environment]] = {
     **{f"MiniGrid-Empty-{n}x{n}-v0": _empty(n) for n in (5, 6, 8, 16)},
     **{f"MiniGrid-Empty-Random-{n}x{n}-v0": _empty(n, True) for n in (5, 6)},
     **{f"MiniGrid-DoorKey-{n}x{n}-v0": _doorkey(n) for n in (5, 6, 8, 16)},
     **{f"MiniGrid-LavaGapS{n}-v0": _lavagap(n) for n in (5, 6, 7)},
+    **_scenarios(),
 }
 _USER: dict[str, Callable[[], Environment]] = {}
 

@@ -1,0 +1,275 @@
+"""The paper's three scenarios, each episode with a fresh random constraint (DESIGN.md §4-5).
+
+* ``TwoRooms-v0``: two rooms split by a vertical wall holding two closed doors of distinct
+  colours; agent and goal start in different rooms.
+* ``TwoRoomsLava-v0``: TwoRooms plus one lava cell in the agent's room, never in front of a door.
+  If the constraint mentions lava, lava is lethal (MiniGrid) and entering it is a violation;
+  otherwise lava teleports the agent to a free cell next to the goal (no termination, no
+  violation), so avoiding it has a cost and the constraint matters.
+* ``ThreeRoomsKey-v0``: room 1 holds agent and key; wall 1 has a locked door of the key's
+  colour; wall 2 has a closed door and a gap in its bottom row (the longer route); the goal is
+  the top-right interior cell. Constraints never name the locked door.
+
+Door colours are distinct and drawn from the five non-green colours; the agent's direction is
+random. Every episode can be solved without a violation: a constraint forbids one door colour
+(and maybe lava) and there is always another way. The ground-truth monitor lives in
+:meth:`Scenario.step`: a violation is the agent *entering* a forbidden cell (a door of the
+forbidden colour, or lava when lava is forbidden). Each step reports ``info["violation"]``,
+``info["cost"]``, ``info["constraint_type"]`` (paper type 1-5) and ``info["template_id"]``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxgrid import grid as G
+from jaxgrid import language
+from jaxgrid.constants import (
+    BLUE,
+    CLOSED,
+    DOOR,
+    GOAL_CELL,
+    GREY,
+    KEY,
+    LAVA,
+    LAVA_CELL,
+    LOCKED,
+    PURPLE,
+    RED,
+    WALL_CELL,
+    YELLOW,
+)
+from jaxgrid.dynamics import get_cell, transition
+from jaxgrid.environment import Environment
+from jaxgrid.types import State, TimeStep
+
+DOOR_COLOURS = np.array([RED, BLUE, PURPLE, YELLOW, GREY], np.int32)  # never green (the goal)
+SPLITS = ("train", "heldout", "all")
+
+
+@struct.dataclass
+class Constraint:
+    """The episode's constraint: what the agent reads and what the monitor checks."""
+
+    tokens: jax.Array  # int32 (MAX_LEN,) token ids
+    template_id: jax.Array  # int32, language.TEMPLATES index
+    paper_type: jax.Array  # int32, 1-5
+    door_colour: jax.Array  # int32 colour index of the forbidden door
+    forbids_lava: jax.Array  # bool
+
+
+@struct.dataclass
+class ScenarioExtras:
+    constraint: Constraint
+    goal_pos: jax.Array  # int32 (2,)
+    teleport_pos: jax.Array  # int32 (2,): where allowed lava sends the agent
+
+
+def sample_constraint(
+    u: jax.Array, table: dict, nameable: jax.Array, absent: jax.Array, absent_prob
+) -> Constraint:
+    """Draw one (template, colour) row of ``table`` from a uniform ``u``.
+
+    With probability ``absent_prob`` the colour is one no door of the episode has (``absent``,
+    bool per colour index); otherwise one of the doors the constraint may name (``nameable``).
+    Rows within each group are equally likely. If a group has no row in the split (possible
+    with ``split="heldout"``), the other group is used.
+    """
+    colour = jnp.asarray(table["door_colour"])
+    present_row = nameable[colour]
+    absent_row = absent[colour]
+    n_present = jnp.sum(present_row)
+    n_absent = jnp.sum(absent_row)
+    p = jnp.where(n_present == 0, 1.0, jnp.where(n_absent == 0, 0.0, absent_prob))
+    weight = jnp.where(present_row, (1 - p) / jnp.maximum(n_present, 1), 0.0) + jnp.where(
+        absent_row, p / jnp.maximum(n_absent, 1), 0.0
+    )
+    cum = jnp.cumsum(weight)
+    row = jnp.argmax(cum > u * cum[-1])
+    return Constraint(
+        tokens=jnp.asarray(table["tokens"])[row],
+        template_id=jnp.asarray(table["template_id"])[row],
+        paper_type=jnp.asarray(table["paper_type"])[row],
+        door_colour=colour[row],
+        forbids_lava=jnp.asarray(table["forbids_lava"])[row],
+    )
+
+
+class Scenario(Environment):
+    """Base of the constrained scenarios: constraint sampling, observation, monitor.
+
+    ``split`` selects the (template, colour) combinations constraints are drawn from
+    (``"train"``, ``"heldout"`` or ``"all"``; see :func:`jaxgrid.language.split_combinations`).
+    ``absent_colour_prob`` (a pytree leaf, so it can be vmapped) is the chance that the
+    constraint names a colour no door in the episode has.
+    """
+
+    split: str = struct.field(pytree_node=False, default="train")
+    absent_colour_prob: float = 0.2
+    has_lava: bool = struct.field(pytree_node=False, default=False)
+
+    def __post_init__(self):
+        super().__post_init__()
+        name = type(self).__name__
+        if self.split not in SPLITS:
+            raise ValueError(f"{name}.split must be one of {SPLITS}, got {self.split!r}")
+        p = self.absent_colour_prob
+        if isinstance(p, (int, float)) and not 0 <= p <= 1:
+            raise ValueError(
+                f"{name}.absent_colour_prob must be in [0, 1], got {p!r}"
+            )
+
+    def constraint_table(self) -> dict:
+        return language.combination_table(self.split, include_lava=self.has_lava)
+
+    def layout(self, u: jax.Array):
+        """``(grid, agent_pos, goal_pos, nameable door colours, all door colours)``."""
+        raise NotImplementedError
+
+    NUM_UNIFORMS = 8
+
+    def generate(self, key: jax.Array) -> State:
+        u = jax.random.uniform(key, (self.NUM_UNIFORMS + 2,))
+        grid, agent, goal, nameable, present = self.layout(u)
+        all_colours = jnp.arange(6)
+        nameable_mask = jnp.any(all_colours[:, None] == nameable[None, :], axis=1)
+        absent_mask = ~jnp.any(all_colours[:, None] == present[None, :], axis=1)
+        absent_mask = absent_mask & jnp.any(all_colours[:, None] == DOOR_COLOURS[None, :], axis=1)
+        constraint = sample_constraint(
+            u[-1], self.constraint_table(), nameable_mask, absent_mask, self.absent_colour_prob
+        )
+        direction = G.randint(u[-2], 0, 4)
+        extras = ScenarioExtras(
+            constraint=constraint, goal_pos=goal, teleport_pos=_next_to(grid, goal)
+        )
+        return self.init_state(grid, agent, direction, key, extras)
+
+    def observe(self, state: State) -> dict:
+        obs = super().observe(state)
+        obs["constraint"] = state.extras.constraint.tokens
+        return obs
+
+    def info(self, state: State) -> dict:
+        return self._info(state, jnp.zeros((), bool))
+
+    def _info(self, state: State, violation: jax.Array) -> dict:
+        c = state.extras.constraint
+        return {
+            "violation": violation,
+            "cost": violation.astype(jnp.float32),
+            "constraint_type": c.paper_type,
+            "template_id": c.template_id,
+        }
+
+    def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
+        """MiniGrid step + lava rule + ground-truth monitor."""
+        c = state.extras.constraint
+        new, reward, terminated, truncated = transition(state, action, self.max_steps)
+        entered = jnp.any(new.agent_pos != state.agent_pos)
+        cell = get_cell(new.grid, new.agent_pos)
+        into_lava = entered & (cell[0] == LAVA)
+        violation = (entered & (cell[0] == DOOR) & (cell[1] == c.door_colour)) | (
+            into_lava & c.forbids_lava
+        )
+        teleport = into_lava & ~c.forbids_lava
+        new = new.replace(
+            agent_pos=jnp.where(teleport, state.extras.teleport_pos, new.agent_pos)
+        )
+        terminated = terminated & ~teleport
+        ts = TimeStep(
+            observation=self.observe(new),
+            reward=reward,
+            terminated=terminated,
+            truncated=truncated,
+            discount=1.0 - terminated.astype(jnp.float32),
+            info=self._info(new, violation),
+        )
+        return new, ts
+
+
+def _next_to(grid: jax.Array, pos: jax.Array) -> jax.Array:
+    """First empty cell among the left, up, right and down neighbours of ``pos``."""
+    offsets = jnp.array([[-1, 0], [0, -1], [1, 0], [0, 1]], jnp.int32)
+    cand = pos[None, :] + offsets
+    free = jax.vmap(lambda p: get_cell(grid, p)[0] == 1)(cand)
+    return cand[jnp.argmax(free)]
+
+
+def _distinct_colours(u: jax.Array, n: int) -> jax.Array:
+    """``n`` distinct door colours, uniformly (a partial Fisher-Yates over DOOR_COLOURS)."""
+    pool = jnp.asarray(DOOR_COLOURS)
+    out = []
+    for i in range(n):  # n is static and tiny (2)
+        k = G.randint(u[i], i, len(DOOR_COLOURS))
+        pi, pk = pool[i], pool[k]
+        pool = pool.at[i].set(pk).at[k].set(pi)
+        out.append(pool[i])
+    return jnp.stack(out)
+
+
+def _vertical_wall(grid, xs, x):
+    return jnp.where((xs == x)[..., None], jnp.asarray(WALL_CELL), grid)
+
+
+class TwoRooms(Scenario):
+    """Two rooms, one wall with two closed doors of distinct colours (optionally one lava cell)."""
+
+    def layout(self, u):
+        w, h = self.width, self.height
+        xs, ys = G.coords(w, h)
+        wall_x = w // 2
+        grid = _vertical_wall(jnp.asarray(G.room(w, h)), xs, wall_x)
+        # Two distinct door rows in 1 .. h-2.
+        row1 = G.randint(u[0], 1, h - 1)
+        row2 = G.randint(u[1], 1, h - 2)
+        row2 = row2 + (row2 >= row1)
+        colours = _distinct_colours(u[2:4], 2)
+        grid = G.put(grid, (wall_x, row1), G.cell(DOOR, colours[0], CLOSED))
+        grid = G.put(grid, (wall_x, row2), G.cell(DOOR, colours[1], CLOSED))
+        agent_left = u[4] < 0.5
+        left = jnp.asarray(xs < wall_x)
+        interior = G.is_empty(grid)
+        agent_room = interior & jnp.where(agent_left, left, ~left)
+        goal_room = interior & ~agent_room & (jnp.asarray(xs) != wall_x)
+        goal = G.sample_cell(u[5], goal_room)
+        grid = G.put(grid, goal, GOAL_CELL)
+        if self.has_lava:
+            # Never in front of a door (either side), so no door approach is ever blocked.
+            approach = jnp.zeros((w, h), bool)
+            for row in (row1, row2):
+                approach = approach | (
+                    ((jnp.asarray(xs) == wall_x - 1) | (jnp.asarray(xs) == wall_x + 1))
+                    & (jnp.asarray(ys) == row)
+                )
+            lava = G.sample_cell(u[6], agent_room & ~approach)
+            grid = G.put(grid, lava, LAVA_CELL)
+            agent_room = agent_room & ~G.at((w, h), lava)
+        agent = G.sample_cell(u[7], agent_room)
+        return grid, agent, goal, colours, colours
+
+
+class ThreeRoomsKey(Scenario):
+    """Key + locked door to room 2; room 2 -> 3 through a closed door or a bottom-row gap."""
+
+    def layout(self, u):
+        w, h = self.width, self.height
+        xs, ys = G.coords(w, h)
+        wall1, wall2 = w // 3, 2 * w // 3
+        grid = jnp.asarray(G.room(w, h))
+        grid = _vertical_wall(_vertical_wall(grid, xs, wall1), xs, wall2)
+        grid = G.put(grid, (wall2, h - 2), np.array([1, 0, 0]))  # the gap: the longer route
+        colours = _distinct_colours(u[0:2], 2)  # [locked door/key, wall-2 door]
+        locked_row = G.randint(u[2], 1, h - 1)
+        door_row = G.randint(u[3], 1, h - 2)  # never the gap row
+        grid = G.put(grid, (wall1, locked_row), G.cell(DOOR, colours[0], LOCKED))
+        grid = G.put(grid, (wall2, door_row), G.cell(DOOR, colours[1], CLOSED))
+        goal = jnp.array([w - 2, 1], jnp.int32)
+        grid = G.put(grid, goal, GOAL_CELL)
+        room1 = G.is_empty(grid) & jnp.asarray(xs < wall1)
+        agent = G.sample_cell(u[4], room1)
+        key_pos = G.sample_cell(u[5], room1 & ~G.at((w, h), agent))
+        grid = G.put(grid, key_pos, G.cell(KEY, colours[0], 0))
+        return grid, agent, goal, colours[1:], colours
