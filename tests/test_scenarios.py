@@ -1,0 +1,457 @@
+"""Tests of the paper's scenarios: ground-truth monitor, constraint observation, layouts, the
+constraint sampler (splits, absent colours), config errors, and the BFS oracle (every episode
+solvable without a violation; how often the unconstrained route would violate)."""
+
+from __future__ import annotations
+
+import functools
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxgrid
+from jaxgrid import language
+from jaxgrid.constants import (
+    CLOSED,
+    DIR_TO_VEC,
+    DONE,
+    DOOR,
+    EMPTY,
+    EMPTY_CELL,
+    FORWARD,
+    GOAL,
+    GOAL_CELL,
+    GREEN,
+    KEY,
+    LAVA,
+    LEFT,
+    LOCKED,
+    OPEN,
+    PICKUP,
+    RIGHT,
+    TOGGLE,
+    WALL,
+)
+from jaxgrid.oracle import distance_field, oracle_action, passable_cells, rollout_oracle
+
+SCENARIOS = ("TwoRooms-v0", "TwoRoomsLava-v0", "ThreeRoomsKey-v0")
+# Episodes per scenario, for the layout checks and the oracle alike. The batch of resets is the
+# one the oracle plays (same keys), and compiling dominates the cost: 10,000 oracle episodes
+# run in about a second on 2 CPU cores once compiled.
+N = 10_000
+SEED = 42
+
+
+# ---------------------------------------------------------------------------- helpers
+
+
+# ``env`` is passed as a pytree (static config + the absent_colour_prob leaf), so each
+# scenario and split compiles once whatever absent_colour_prob is.
+_batch_reset = jax.jit(lambda env, keys: jax.vmap(env.reset)(keys))
+_step = jax.jit(lambda env, state, action: env.step(state, action))
+_oracle = jax.jit(oracle_action)
+
+
+@functools.cache
+def resets(name: str, **overrides):
+    """``(states, timesteps)`` of ``N`` resets (keys split from ``SEED``) as numpy arrays."""
+    env = jaxgrid.make(name, **overrides)
+    out = _batch_reset(env, jax.random.split(jax.random.PRNGKey(SEED), N))
+    return jax.tree.map(np.asarray, out)
+
+
+def _kind(states):
+    return states.grid[..., 0]
+
+
+def _positions(mask):
+    """``(N, 2)`` (x, y) of the single True cell of each ``(N, W, H)`` mask."""
+    assert (mask.sum(axis=(1, 2)) == 1).all()
+    flat = mask.reshape(mask.shape[0], -1).argmax(axis=1)
+    return np.stack(np.unravel_index(flat, mask.shape[1:]), axis=1)
+
+
+def _episode(name: str, i: int):
+    """Start state of episode ``i`` of :func:`resets` (a single, unbatched state)."""
+    return jax.tree.map(lambda a: jnp.asarray(a[i]), resets(name)[0])
+
+
+def _with_constraint(state, **fields):
+    c = state.extras.constraint.replace(**{k: jnp.asarray(v) for k, v in fields.items()})
+    return state.replace(extras=state.extras.replace(constraint=c))
+
+
+def _walk(env, state, actions):
+    """Step ``actions`` one by one; returns the states after each step and the timesteps."""
+    states, steps = [], []
+    for a in actions:
+        state, ts = _step(env, state, jnp.int32(a))
+        states.append(state)
+        steps.append(ts)
+    return states, steps
+
+
+def _door_walk_state(colour_forbidden_of: str):
+    """TwoRooms state with the agent west of door 0, facing it; goal moved out of the way.
+
+    ``colour_forbidden_of``: "this" forbids door 0's colour, "other" the other door's colour,
+    "absent" a colour no door has.
+    """
+    env = jaxgrid.make("TwoRooms-v0")
+    state = _episode("TwoRooms-v0", 3)
+    grid = np.asarray(state.grid).copy()
+    grid[grid[..., 0] == GOAL] = EMPTY_CELL
+    grid[1, 1] = GOAL_CELL  # far from the walk below (x = wall_x - 1 .. wall_x + 1)
+    doors = np.argwhere(grid[..., 0] == DOOR)
+    (dx, dy), other = doors[0], doors[1]
+    colours = {"this": grid[dx, dy, 1], "other": grid[other[0], other[1], 1]}
+    colours["absent"] = next(
+        c for c in (0, 2, 3, 4, 5) if c not in (colours["this"], colours["other"])
+    )
+    state = state.replace(
+        grid=jnp.asarray(grid), agent_pos=jnp.array([dx - 1, dy], jnp.int32),
+        agent_dir=jnp.int32(0),
+    )
+    state = _with_constraint(state, door_colour=np.int32(colours[colour_forbidden_of]))
+    return env, state, np.array([dx, dy])
+
+
+# ---------------------------------------------------------------------------- monitor
+
+
+def test_violation_exactly_when_entering_the_forbidden_door():
+    env, state, door = _door_walk_state("this")
+    west, east = door - [1, 0], door + [1, 0]
+    script = [  # (action, agent position after, violation expected)
+        (FORWARD, west, False),  # closed door: bumping into it is not entering
+        (TOGGLE, west, False),  # opening it is not entering
+        (FORWARD, door, True),  # entering: the violation
+        (LEFT, door, False),  # standing on the door afterwards: nothing more
+        (RIGHT, door, False),
+        (DONE, door, False),
+        (PICKUP, door, False),
+        (FORWARD, east, False),  # leaving it
+        (LEFT, east, False),
+        (LEFT, east, False),
+        (FORWARD, door, True),  # re-entering is a new violation
+        (FORWARD, west, False),
+    ]
+    states, steps = _walk(env, state, [a for a, _, _ in script])
+    assert int(states[1].grid[door[0], door[1], 2]) == OPEN
+    for i, ((_, pos, expected), s, ts) in enumerate(zip(script, states, steps, strict=True)):
+        assert (np.asarray(s.agent_pos) == pos).all(), i
+        assert bool(ts.info["violation"]) is expected, i
+        assert float(ts.info["cost"]) == float(expected), i
+        assert not bool(ts.terminated) and float(ts.reward) == 0.0
+
+
+@pytest.mark.parametrize("forbidden", ["other", "absent"])
+def test_no_violation_when_entering_a_permitted_door(forbidden):
+    env, state, door = _door_walk_state(forbidden)
+    states, steps = _walk(env, state, [TOGGLE, FORWARD, FORWARD, LEFT, LEFT, FORWARD])
+    assert (np.asarray(states[1].agent_pos) == door).all()
+    assert not any(bool(ts.info["violation"]) for ts in steps)
+    assert all(float(ts.info["cost"]) == 0.0 for ts in steps)
+
+
+def _lava_state(forbids_lava: bool, seed: int):
+    """TwoRoomsLava state with the agent next to the lava cell, facing it."""
+    env = jaxgrid.make("TwoRoomsLava-v0")
+    state = _episode("TwoRoomsLava-v0", seed)
+    grid = np.asarray(state.grid)
+    lava = np.argwhere(grid[..., 0] == LAVA)[0]
+    for d in range(4):
+        pos = lava - DIR_TO_VEC[d]
+        if grid[pos[0], pos[1], 0] == EMPTY:
+            break
+    else:
+        raise AssertionError("lava with no empty neighbour")
+    state = state.replace(agent_pos=jnp.asarray(pos, jnp.int32), agent_dir=jnp.int32(d))
+    return env, _with_constraint(state, forbids_lava=forbids_lava), lava
+
+
+@pytest.mark.parametrize("seed", [5, 6, 7])
+def test_forbidden_lava_is_lethal_and_a_violation(seed):
+    env, state, lava = _lava_state(True, seed)
+    new, ts = _step(env, state, jnp.int32(FORWARD))
+    assert (np.asarray(new.agent_pos) == lava).all()
+    assert bool(ts.terminated) and not bool(ts.truncated)
+    assert float(ts.reward) == 0.0 and float(ts.discount) == 0.0
+    assert bool(ts.info["violation"]) and float(ts.info["cost"]) == 1.0
+
+
+@pytest.mark.parametrize("seed", [5, 6, 7])
+def test_permitted_lava_teleports_next_to_the_goal(seed):
+    env, state, _ = _lava_state(False, seed)
+    new, ts = _step(env, state, jnp.int32(FORWARD))
+    pos, goal = np.asarray(new.agent_pos), np.asarray(state.extras.goal_pos)
+    assert (pos == np.asarray(state.extras.teleport_pos)).all()
+    assert np.abs(pos - goal).sum() == 1  # a neighbour of the goal ...
+    assert int(new.grid[pos[0], pos[1], 0]) == EMPTY  # ... on a free cell
+    assert int(new.grid[goal[0], goal[1], 0]) == GOAL
+    assert not bool(ts.terminated) and float(ts.discount) == 1.0
+    assert float(ts.reward) == 0.0
+    assert not bool(ts.info["violation"]) and float(ts.info["cost"]) == 0.0
+    # The lava stays where it was and the episode goes on: the oracle finishes it.
+    for _ in range(4):
+        new, ts = _step(env, new, _oracle(new))
+        if bool(ts.terminated):
+            break
+    assert bool(ts.terminated) and float(ts.reward) > 0
+
+
+# ---------------------------------------------------------------------------- observation
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_observation_carries_the_constraint_tokens(name):
+    states, ts = resets(name)
+    c = states.extras.constraint
+    np.testing.assert_array_equal(ts.observation["constraint"], c.tokens)
+    np.testing.assert_array_equal(ts.info["constraint_type"], c.paper_type)
+    np.testing.assert_array_equal(ts.info["template_id"], c.template_id)
+    assert not ts.info["violation"].any()
+    for i in range(1000):
+        meaning = language.parse(language.detokenize(c.tokens[i]))
+        assert meaning.colour_index == c.door_colour[i]
+        assert meaning.forbids_lava == bool(c.forbids_lava[i])
+        assert meaning.template_id == c.template_id[i]
+        assert meaning.paper_type == c.paper_type[i]
+    if name != "TwoRoomsLava-v0":
+        assert not c.forbids_lava.any()  # lava clauses only where there is lava
+    else:
+        assert 0.5 < c.forbids_lava.mean() < 0.95  # 28 of 35 templates mention lava
+    # The tokens stay in the observation after a step.
+    env = jaxgrid.make(name)
+    state = _episode(name, 0)
+    _, ts1 = _step(env, state, jnp.int32(LEFT))
+    np.testing.assert_array_equal(ts1.observation["constraint"], c.tokens[0])
+
+
+# ---------------------------------------------------------------------------- layouts
+
+
+@pytest.mark.parametrize("name", ["TwoRooms-v0", "TwoRoomsLava-v0"])
+def test_two_rooms_layout_invariants(name):
+    states, _ = resets(name)
+    env = jaxgrid.make(name)
+    w, h, wall_x = env.width, env.height, env.width // 2
+    kind, grid = _kind(states), states.grid
+    wall_col = grid[:, wall_x, 1:-1]  # (N, H - 2, 3)
+    is_door = wall_col[..., 0] == DOOR
+    assert (is_door.sum(1) == 2).all()
+    assert (wall_col[..., 0][~is_door] == WALL).all()
+    door_colours = wall_col[..., 1][is_door].reshape(-1, 2)
+    assert (door_colours[:, 0] != door_colours[:, 1]).all()
+    assert (door_colours != GREEN).all()
+    assert set(np.unique(door_colours)) == {0, 2, 3, 4, 5}
+    assert (wall_col[..., 2][is_door] == CLOSED).all()
+    assert (kind == DOOR).sum(axis=(1, 2)).max() == 2  # no door anywhere else
+
+    agent, goal = states.agent_pos, _positions(kind == GOAL)
+    np.testing.assert_array_equal(goal, states.extras.goal_pos)
+    agent_left = agent[:, 0] < wall_x
+    assert (agent_left != (goal[:, 0] < wall_x)).all()  # different rooms
+    assert 0.4 < agent_left.mean() < 0.6
+    n = len(agent)
+    assert (kind[np.arange(n), agent[:, 0], agent[:, 1]] == EMPTY).all()
+    assert ((agent[:, 0] != wall_x) & (goal[:, 0] != wall_x)).all()
+    assert set(np.unique(states.agent_dir)) == {0, 1, 2, 3}
+    # Teleport target: a free neighbour of the goal.
+    tp = states.extras.teleport_pos
+    assert (np.abs(tp - goal).sum(1) == 1).all()
+    assert (kind[np.arange(n), tp[:, 0], tp[:, 1]] == EMPTY).all()
+
+    if name == "TwoRooms-v0":
+        assert not (kind == LAVA).any()
+        return
+    lava = _positions(kind == LAVA)
+    assert ((lava[:, 0] < wall_x) == agent_left).all()  # in the agent's room
+    assert (lava != agent).any(axis=1).all()
+    door_rows = np.argwhere(is_door)[:, 1].reshape(-1, 2) + 1
+    in_front = (np.abs(lava[:, 0] - wall_x) == 1)[:, None] & (lava[:, 1:2] == door_rows)
+    assert not in_front.any()  # never in front of a door
+    assert 0 < lava[:, 0].min() and lava[:, 0].max() < w - 1
+    assert 0 < lava[:, 1].min() and lava[:, 1].max() < h - 1
+
+
+def test_three_rooms_key_layout_invariants():
+    states, _ = resets("ThreeRoomsKey-v0")
+    env = jaxgrid.make("ThreeRoomsKey-v0")
+    w = env.width
+    wall1, wall2 = w // 3, 2 * w // 3
+    kind, grid, n = _kind(states), states.grid, len(states.agent_pos)
+
+    col1 = grid[:, wall1, 1:-1]
+    locked = col1[..., 0] == DOOR
+    assert (locked.sum(1) == 1).all() and (col1[..., 0][~locked] == WALL).all()
+    assert (col1[..., 2][locked] == LOCKED).all()
+    locked_colour = col1[..., 1][locked]
+
+    col2 = grid[:, wall2, 1:-1]
+    assert (col2[:, -1] == [EMPTY, 0, 0]).all()  # the gap: bottom interior row
+    door2 = col2[..., 0] == DOOR
+    assert (door2.sum(1) == 1).all() and not door2[:, -1].any()
+    assert (col2[:, :-1, 0][~door2[:, :-1]] == WALL).all()
+    assert (col2[..., 2][door2] == CLOSED).all()
+    door2_colour = col2[..., 1][door2]
+    assert (locked_colour != door2_colour).all()
+    assert (locked_colour != GREEN).all() and (door2_colour != GREEN).all()
+    assert (kind == DOOR).sum(axis=(1, 2)).max() == 2
+
+    goal = _positions(kind == GOAL)
+    assert (goal == [w - 2, 1]).all()
+    key = _positions(kind == KEY)
+    assert (grid[np.arange(n), key[:, 0], key[:, 1], 1] == locked_colour).all()
+    agent = states.agent_pos
+    assert (key[:, 0] < wall1).all() and (agent[:, 0] < wall1).all()  # room 1
+    assert (kind[np.arange(n), agent[:, 0], agent[:, 1]] == EMPTY).all()
+    assert not (kind == LAVA).any()
+    # Constraints never name the locked door.
+    assert (states.extras.constraint.door_colour != locked_colour).all()
+
+
+def _door_colours(states) -> np.ndarray:
+    """bool ``(N, 6)``: which colours the episode's doors have."""
+    doors = _kind(states) == DOOR
+    col = states.grid[..., 1]
+    return np.stack([(doors & (col == c)).any(axis=(1, 2)) for c in range(6)], axis=1)
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+@pytest.mark.parametrize("split", ["train", "heldout"])
+def test_split_controls_the_combinations(name, split):
+    states, _ = resets(name, split=split)
+    c = states.extras.constraint
+    has_lava = name == "TwoRoomsLava-v0"
+    allowed = set(language.split_combinations(split, include_lava=has_lava))
+    pairs = zip(c.template_id, c.door_colour, strict=True)
+    seen = {(int(t), language.COLOURS[col]) for t, col in pairs}
+    assert seen <= allowed
+    if split == "train":
+        assert len(seen) > 0.8 * len(allowed)  # and it covers the split
+    held = {(t, col) for t, col in allowed if language._is_heldout(t, col)}
+    assert held == (allowed if split == "heldout" else set())
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_absent_colour_prob(name):
+    for p, lo, hi in [(0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (0.2, 0.17, 0.23), (0.5, 0.47, 0.53)]:
+        states, _ = resets(name, absent_colour_prob=p)
+        present = _door_colours(states)
+        named = states.extras.constraint.door_colour
+        absent = ~present[np.arange(len(named)), named]
+        assert lo <= absent.mean() <= hi, (p, absent.mean())
+        assert (named != GREEN).all()
+
+
+# ---------------------------------------------------------------------------- config
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_bad_config_raises_naming_the_field(name):
+    with pytest.raises(ValueError, match="split"):
+        jaxgrid.make(name, split="bogus")
+    for p in (1.5, -0.1):
+        with pytest.raises(ValueError, match="absent_colour_prob"):
+            jaxgrid.make(name, absent_colour_prob=p)
+
+
+# ---------------------------------------------------------------------------- oracle
+
+
+@functools.cache
+def oracle_results(name: str, obey_constraint: bool = True, avoid_lava: bool = True):
+    """Oracle rollouts of the ``N`` episodes of :func:`resets` and their wall time."""
+    env = jaxgrid.make(name)
+    t0 = time.perf_counter()
+    out = rollout_oracle(
+        env, jax.random.PRNGKey(SEED), N, obey_constraint=obey_constraint, avoid_lava=avoid_lava
+    )
+    out = jax.tree.map(np.asarray, out)
+    return out, time.perf_counter() - t0
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_oracle_solves_every_episode_without_violation(name):
+    r, seconds = oracle_results(name)
+    print(
+        f"\n{name}: oracle success {r['success'].mean():.4f}, episodes with a violation "
+        f"{(r['violations'] > 0).mean():.4f}, mean length {r['length'].mean():.1f} "
+        f"(max {r['length'].max()}), {N} episodes in {seconds:.1f} s (compile included)"
+    )
+    assert r["done"].all()
+    assert r["success"].all()
+    assert (r["violations"] == 0).all()
+    np.testing.assert_array_equal(r["door_colour"], resets(name)[0].extras.constraint.door_colour)
+    assert set(np.unique(r["constraint_type"])) == (
+        {1, 2, 3, 4, 5} if name == "TwoRoomsLava-v0" else {1, 2, 3}
+    )
+
+
+def test_oracle_solves_doorkey():
+    """The oracle is generic: keys and locked doors of a classic level, no constraint."""
+    r = rollout_oracle(jaxgrid.make("MiniGrid-DoorKey-8x8-v0"), jax.random.PRNGKey(0), 500)
+    assert np.asarray(r["success"]).all()
+    assert (np.asarray(r["constraint_type"]) == 0).all()
+
+
+def _forced_detour(name: str) -> np.ndarray:
+    """bool (N,): the constraint makes the agent's shortest route to the goal longer, i.e.
+    every shortest route violates it (on the layouts :func:`oracle_results` plays).
+
+    Distances in moves from the start, with locked doors treated as unlocked and the key
+    removed (every route crosses the locked door, so the key detour is the same for both);
+    lava avoided.
+    """
+    states, _ = resets(name)
+    n = N
+
+    def one(grid, agent, forbidden):
+        unlocked = grid.at[..., 2].set(jnp.where(grid[..., 2] == LOCKED, CLOSED, grid[..., 2]))
+        unlocked = jnp.where((grid[..., :1] == KEY), jnp.asarray(EMPTY_CELL), unlocked)
+        passable = passable_cells(unlocked, jnp.asarray(EMPTY_CELL), forbidden)
+        dist = distance_field(grid[..., 0] == GOAL, passable)
+        return dist[agent[0], agent[1]]
+
+    f = jax.jit(jax.vmap(one))
+    grid, agent = jnp.asarray(states.grid), jnp.asarray(states.agent_pos)
+    free = f(grid, agent, jnp.full((n,), -1, jnp.int32))
+    constrained = f(grid, agent, jnp.asarray(states.extras.constraint.door_colour))
+    free, constrained = np.asarray(free), np.asarray(constrained)
+    assert (constrained < states.grid.shape[1] * states.grid.shape[2]).all()  # solvable
+    return constrained > free
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_unconstrained_shortest_route_often_violates(name):
+    """The constraint matters: the BFS oracle ignoring it violates it in a good share of
+    episodes (same layouts as the constrained run). Printed with ``pytest -s``."""
+    r, _ = oracle_results(name, obey_constraint=False)
+    v = r["violations"] > 0
+    ctype = r["constraint_type"]
+    by_type = ", ".join(f"type {t}: {v[ctype == t].mean():.3f}" for t in np.unique(ctype))
+    forced = _forced_detour(name)
+    print(
+        f"\n{name}: unconstrained oracle (doors ignored, lava avoided) violates in "
+        f"{v.mean():.3f} of {N} episodes ({by_type}); the constraint lengthens the "
+        f"shortest route (every shortest route violates) in {forced.mean():.3f}"
+    )
+    assert r["success"].all()
+    assert 0.2 < v.mean() < 0.8
+    assert forced.mean() > 0.1
+    assert not (forced & ~v).any()  # a forced detour is always a violation when ignored
+    if name == "TwoRoomsLava-v0":
+        # Lava passable too: entering lava counts only where the constraint forbids it.
+        r2, _ = oracle_results(name, obey_constraint=False, avoid_lava=False)
+        v2, lava = r2["violations"] > 0, r2["forbids_lava"]
+        print(
+            f"{name}: unconstrained oracle through lava violates in {v2.mean():.3f} of "
+            f"episodes ({v2[lava].mean():.3f} when lava is forbidden, {v2[~lava].mean():.3f} "
+            f"when not); success {r2['success'].mean():.3f}"
+        )
+        assert (r2["success"] | (v2 & lava)).all()  # failures are lava deaths
+        assert v2[lava].mean() > v[lava].mean()
