@@ -101,7 +101,9 @@ def _check_config(env: Environment) -> None:
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
             raise ValueError(f"{type(env).__name__}.{name} must be a positive int, got {value!r}")
     v = env.view_size
-    if not isinstance(v, int) or v < 3 or v % 2 == 0:
+    # At most 31: the occlusion pass holds a view row in the bits of an int32.
+    if not isinstance(v, int) or v < 3 or v % 2 == 0 or v > 31:
         raise ValueError(
-            f"{type(env).__name__}.view_size must be an odd int >= 3 (MiniGrid's rule), got {v!r}"
+            f"{type(env).__name__}.view_size must be an odd int in 3..31 (MiniGrid requires odd "
+            f">= 3; jaxgrid's occlusion packs a row into an int32), got {v!r}"
         )

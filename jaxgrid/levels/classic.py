@@ -53,7 +53,7 @@ class DoorKey(Environment):
         left = jnp.asarray(xs) < split
         agent = G.sample_cell(u[1], left & G.is_empty(grid))  # place_agent(size=(split, h))
         direction = G.randint(u[2], 0, 4)
-        door_y = G.randint(u[3], 1, w - 2)  # _rand_int(1, width - 2)
+        door_y = G.randint(u[3], 1, h - 2)  # _rand_int(1, height - 2)
         grid = G.put(grid, (split, door_y), G.cell(DOOR, YELLOW, LOCKED))
         free = left & G.is_empty(grid)
         free = free & ~G.at((w, h), agent)  # place_obj never lands on the agent

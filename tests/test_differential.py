@@ -1,0 +1,196 @@
+"""Step-by-step equality with Farama MiniGrid 3.2.0 (the reference implementation).
+
+For each level, MiniGrid is reset with many seeds, converted with ``jaxgrid.compat.from_minigrid``
+and both are stepped with the same biased random actions; after every step we compare the
+observation image, direction, reward (within 1e-6), terminated, truncated, the full grid
+encoding, the agent's position and the carried object, up to MiniGrid's episode end. See
+``tests/minigrid_reference.py`` for the machinery (one jitted ``vmap(lax.scan)`` per level).
+
+Levels whose ``step`` overrides ``MiniGridEnv.step`` (KeyCorridor, BlockedUnlockPickup,
+UnlockPickup, ObstructedMaze, RedBlueDoors) only add a level-specific reward/termination on top
+of it; for those we step MiniGrid with ``MiniGridEnv.step`` itself (``base_step``), which is
+the semantics jaxgrid reproduces, so their layouts still exercise the core dynamics.
+"""
+
+from __future__ import annotations
+
+import zlib
+
+import jax
+import minigrid_reference as R  # tests/ is on sys.path (pytest's default import mode)
+import numpy as np
+import pytest
+from minigrid.core.world_object import Ball, Box, Key
+
+import jaxgrid
+from jaxgrid.compat import from_minigrid
+
+SEEDS = 32  # per level in the default run
+SLOW_SEEDS = 200
+MAX_T = 300  # steps per episode at most (episodes end earlier at max_steps / goal / lava)
+
+# (label, MiniGrid id, gym.make kwargs, use MiniGridEnv.step itself)
+LEVELS = [
+    ("DoorKey-5x5", "MiniGrid-DoorKey-5x5-v0", {}, False),
+    ("DoorKey-8x8", "MiniGrid-DoorKey-8x8-v0", {}, False),
+    ("DoorKey-8x8-view3", "MiniGrid-DoorKey-8x8-v0", {"agent_view_size": 3, "max_steps": 150},
+     False),
+    ("DoorKey-8x8-view5", "MiniGrid-DoorKey-8x8-v0", {"agent_view_size": 5, "max_steps": 150},
+     False),
+    ("DoorKey-8x8-seethrough", "MiniGrid-DoorKey-8x8-v0",
+     {"see_through_walls": True, "max_steps": 150}, False),
+    ("DoorKey-16x16-view11", "MiniGrid-DoorKey-16x16-v0",
+     {"agent_view_size": 11, "max_steps": 150}, False),  # no lookup table above view 9
+    ("LavaGapS5", "MiniGrid-LavaGapS5-v0", {}, False),
+    ("LavaGapS7", "MiniGrid-LavaGapS7-v0", {}, False),
+    ("MultiRoom-N4-S5", "MiniGrid-MultiRoom-N4-S5-v0", {}, False),
+    ("MultiRoom-N2-S4", "MiniGrid-MultiRoom-N2-S4-v0", {}, False),
+    ("FourRooms", "MiniGrid-FourRooms-v0", {}, False),
+    ("LavaCrossingS9N2", "MiniGrid-LavaCrossingS9N2-v0", {}, False),
+    ("SimpleCrossingS9N1", "MiniGrid-SimpleCrossingS9N1-v0", {}, False),
+    ("LockedRoom", "MiniGrid-LockedRoom-v0", {}, False),
+    ("Empty-8x8", "MiniGrid-Empty-8x8-v0", {}, False),  # see_through_walls=True
+    ("Empty-Random-5x5", "MiniGrid-Empty-Random-5x5-v0", {}, False),
+    ("DistShift1", "MiniGrid-DistShift1-v0", {}, False),  # see_through_walls=True
+    ("Playground", "MiniGrid-Playground-v0", {}, False),  # empty boxes, keys, balls, doors
+    ("KeyCorridorS3R3", "MiniGrid-KeyCorridorS3R3-v0", {}, True),
+    ("BlockedUnlockPickup", "MiniGrid-BlockedUnlockPickup-v0", {}, True),
+    ("UnlockPickup", "MiniGrid-UnlockPickup-v0", {"max_steps": 150}, True),
+    ("ObstructedMaze-1Dl", "MiniGrid-ObstructedMaze-1Dl-v0", {"max_steps": 150}, True),
+    ("RedBlueDoors-6x6", "MiniGrid-RedBlueDoors-6x6-v0", {"max_steps": 150}, True),
+]
+SLOW_LEVELS = LEVELS + [
+    ("DoorKey-16x16", "MiniGrid-DoorKey-16x16-v0", {}, False),
+    ("DoorKey-6x6-view9", "MiniGrid-DoorKey-6x6-v0", {"agent_view_size": 9}, False),
+    ("DoorKey-8x8-view13", "MiniGrid-DoorKey-8x8-v0", {"agent_view_size": 13}, False),
+    ("LavaCrossingS11N5", "MiniGrid-LavaCrossingS11N5-v0", {}, False),
+    ("SimpleCrossingS11N5", "MiniGrid-SimpleCrossingS11N5-v0", {}, False),
+    ("MultiRoom-N6", "MiniGrid-MultiRoom-N6-v0", {}, False),
+    ("DistShift2", "MiniGrid-DistShift2-v0", {}, False),
+    ("Empty-16x16", "MiniGrid-Empty-16x16-v0", {}, False),
+    ("KeyCorridorS6R3", "MiniGrid-KeyCorridorS6R3-v0", {}, True),
+    ("Unlock", "MiniGrid-Unlock-v0", {}, True),
+    ("RedBlueDoors-8x8", "MiniGrid-RedBlueDoors-8x8-v0", {}, True),
+]
+
+
+def _run(env_id, kwargs, base_step, seeds, action_seed=0, **kw):
+    mg = R.make_reference(env_id, **kwargs)
+    label = f"{env_id} {kwargs}"
+    return R.differential_run(
+        mg, seeds, min(mg.max_steps, MAX_T), label=label, base_step=base_step,
+        action_seed=zlib.crc32(label.encode()) + action_seed, **kw,  # own actions per variant
+    )
+
+
+@pytest.mark.parametrize(
+    "env_id, kwargs, base_step", [lv[1:] for lv in LEVELS], ids=[lv[0] for lv in LEVELS]
+)
+def test_converted_levels_step_like_minigrid(env_id, kwargs, base_step):
+    episodes = _run(env_id, kwargs, base_step, range(SEEDS))
+    assert len(episodes) == SEEDS and sum(ep.length for ep in episodes) >= SEEDS
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "env_id, kwargs, base_step", [lv[1:] for lv in SLOW_LEVELS], ids=[lv[0] for lv in SLOW_LEVELS]
+)
+def test_converted_levels_step_like_minigrid_many_seeds(env_id, kwargs, base_step):
+    # Different seeds from the default run, a different action stream, and grid.encode() after
+    # every step (no assumption about which actions leave the grid alone).
+    _run(env_id, kwargs, base_step, range(1000, 1000 + SLOW_SEEDS), action_seed=1,
+         encode_every_step=True)
+
+
+def test_differential_run_exercises_the_dynamics():
+    """The random-action runs above are not vacuous: goals, lava, doors, boxes, hands all move."""
+    totals = {}
+    for env_id in ("MiniGrid-DoorKey-5x5-v0", "MiniGrid-LavaGapS7-v0", "MiniGrid-Playground-v0"):
+        mg = R.make_reference(env_id)
+        episodes = R.differential_run(mg, range(SEEDS), min(mg.max_steps, MAX_T))
+        for k, v in R.coverage(episodes).items():
+            totals[k] = totals.get(k, 0) + v
+    for event in ("goal", "lava", "truncated", "pickups", "drops", "unlocks", "box_opened"):
+        assert totals[event] > 0, (event, totals)
+
+
+def test_goal_on_the_last_step_is_terminated_and_truncated():
+    """Scripted: Empty-5x5 with max_steps=5 reaches the goal exactly on step 5."""
+    mg = R.make_reference("MiniGrid-Empty-5x5-v0", max_steps=5)
+    mg.reset(seed=0)
+    env, state, _ = from_minigrid(mg)
+    actions = np.array([2, 2, 1, 2, 2], np.int32)  # (1,1) right x2, turn down, down x2
+    episode = R.record_episode(mg, actions, seed=0)
+    assert episode.length == 5
+    assert episode.steps["terminated"][4] and episode.steps["truncated"][4]
+    obs0, outs = R.jax_rollout(R.config_env(env), R.stack([state]), actions[None])
+    R.compare("Empty-5x5 max_steps=5", [episode], obs0, outs)
+    assert bool(outs["terminated"][0, 4]) and bool(outs["truncated"][0, 4])
+    assert abs(float(outs["reward"][0, 4]) - 0.1) < 1e-6
+
+
+def _carry(mg, seed):
+    colour = ("red", "blue", "purple", "grey")[seed % 4]
+    mg.carrying = (Key, Ball, Box)[seed % 3](colour)
+
+
+@pytest.mark.parametrize("env_id", ["MiniGrid-DoorKey-8x8-v0", "MiniGrid-LockedRoom-v0"])
+def test_starting_with_a_carried_object(env_id):
+    """The agent starts holding a key, ball or box (set before converting) and drops it."""
+    mg = R.make_reference(env_id)
+    episodes = R.differential_run(mg, range(SEEDS), min(mg.max_steps, MAX_T), setup=_carry)
+    v = mg.agent_view_size
+    assert all(ep.obs0[v // 2, v - 1, 0] in (5, 6, 7) for ep in episodes)  # shown in the view
+    drops = sum(R.coverage([ep])["drops"] > 0 for ep in episodes)
+    assert drops >= SEEDS // 2, f"only {drops} episodes dropped the carried object"
+
+
+MINIGRID_IDS = [i for i in jaxgrid.registered_ids() if i.startswith("MiniGrid-")]
+
+# Natively generated levels: our reset states, copied into MiniGrid, step like MiniGrid.
+NATIVE = [
+    "MiniGrid-DoorKey-5x5-v0",
+    "MiniGrid-DoorKey-8x8-v0",
+    "MiniGrid-LavaGapS7-v0",
+    "MiniGrid-Empty-Random-5x5-v0",
+    "MiniGrid-Empty-8x8-v0",
+]
+
+
+def _native(env_id, num, key_seed, **kw):
+    env = jaxgrid.make(env_id)
+    mg = R.make_reference(env_id)
+    cfg = R.config_env(env)
+    mg.reset(seed=0)
+    assert cfg == R.config_env(from_minigrid(mg)[0]), "defaults differ from MiniGrid's"
+    states, ts = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(key_seed), num))
+    num_steps = min(env.max_steps, MAX_T)
+    actions = R.draw_actions(key_seed, num, num_steps)
+    episodes = []
+    for b in range(num):
+        state = jax.tree.map(lambda x, b=b: x[b], states)
+        mg.reset(seed=b)  # anything; then overwrite with our state
+        R.set_minigrid_state(mg, state)
+        episodes.append(R.record_episode(mg, actions[b], seed=b, **kw))
+        np.testing.assert_array_equal(ts.observation["image"][b], episodes[-1].obs0)
+    obs0, outs = R.jax_rollout(cfg, states, jax.numpy.asarray(actions))
+    R.compare(f"native {env_id} key {key_seed}", episodes, obs0, outs)
+
+
+@pytest.mark.parametrize("env_id", NATIVE)
+def test_native_levels_step_like_minigrid(env_id):
+    _native(env_id, SEEDS, key_seed=0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", MINIGRID_IDS)
+def test_native_levels_step_like_minigrid_many_seeds(env_id):
+    _native(env_id, SLOW_SEEDS, key_seed=7, encode_every_step=True)
+
+
+@pytest.mark.parametrize("env_id", MINIGRID_IDS)
+def test_registered_defaults_match_minigrid(env_id):
+    """Grid size, max_steps, view size and see_through_walls as MiniGrid sets them."""
+    mg = R.make_reference(env_id)
+    mg.reset(seed=0)
+    assert R.config_env(jaxgrid.make(env_id)) == R.config_env(from_minigrid(mg)[0])
