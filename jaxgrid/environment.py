@@ -72,14 +72,15 @@ class Environment(struct.PyTreeNode):
         false = jnp.zeros((), bool)
         return self.make_timestep(state, jnp.zeros((), jnp.float32), false, false)
 
-    def make_timestep(self, state, reward, terminated, truncated) -> TimeStep:
+    def make_timestep(self, state, reward, terminated, truncated, info=None) -> TimeStep:
+        """TimeStep of ``state``; ``info`` defaults to :meth:`info` (the reset-time info)."""
         return TimeStep(
             observation=self.observe(state),
             reward=reward,
             terminated=terminated,
             truncated=truncated,
             discount=1.0 - terminated.astype(jnp.float32),
-            info=self.info(state),
+            info=self.info(state) if info is None else info,
         )
 
     def init_state(self, grid, agent_pos, agent_dir, key, extras=()) -> State:

@@ -47,6 +47,7 @@ from jaxgrid.constants import (
     RIGHT,
     TOGGLE,
 )
+from jaxgrid.dynamics import front_pos, get_cell
 from jaxgrid.types import State
 
 __all__ = ["distance_field", "oracle_action", "passable_cells", "rollout_oracle"]
@@ -159,7 +160,7 @@ def oracle_action(
     best = jnp.argmin(nd * 4 + turns)
     rel_best = rel[best]
 
-    front = grid[nx[state.agent_dir], ny[state.agent_dir]]
+    front = get_cell(grid, front_pos(state))
     closed_door = (front[0] == DOOR) & (front[2] != OPEN)
     act_ahead = jnp.where(
         front[0] == KEY, PICKUP, jnp.where(closed_door, TOGGLE, FORWARD)

@@ -179,15 +179,8 @@ class Scenario(Environment):
             agent_pos=jnp.where(teleport, state.extras.teleport_pos, new.agent_pos)
         )
         terminated = terminated & ~teleport
-        ts = TimeStep(
-            observation=self.observe(new),
-            reward=reward,
-            terminated=terminated,
-            truncated=truncated,
-            discount=1.0 - terminated.astype(jnp.float32),
-            info=self._info(new, violation),
-        )
-        return new, ts
+        info = self._info(new, violation)
+        return new, self.make_timestep(new, reward, terminated, truncated, info)
 
 
 def _next_to(grid: jax.Array, pos: jax.Array) -> jax.Array:
