@@ -1,0 +1,637 @@
+"""Reporting layer of the paper-reproduction experiments (issue 6, DESIGN.md §7).
+
+Pure numpy + matplotlib: importing this module needs neither JAX nor scipy, and matplotlib is
+only imported inside :func:`plot_curves` (through :class:`matplotlib.figure.Figure` and the Agg
+canvas, never ``pyplot``, so no global backend or figure state is touched).
+
+Contents
+
+- :data:`RESULTS_SCHEMA` and :func:`validate_results`: the ``results.json`` contract.
+- :func:`t_quantile` and :func:`mean_ci`: Student-t confidence intervals over seeds.
+- :func:`plot_curves`: violation % and mean reward against env steps, one line per mode with a
+  95% CI band over seeds (the paper's Figures 4 and 5).
+- :func:`results_table`, :func:`write_report`, :func:`summarise`: Markdown table, atomic
+  ``results.json`` + ``results.md``, and the end-of-run console summary.
+
+Conventions for the optional extras that this module understands (all other extra keys are
+allowed and passed through untouched):
+
+- ``methods.<mode>.final_per_seed``: ``{"violation_rate": [S], "mean_reward": [S],
+  "success_rate": [S]}`` (any subset). When present the table shows ``mean ± CI half-width``.
+- ``methods.<mode>.curve_per_seed``: ``{"step": [T], "violation_rate": [S][T],
+  "mean_reward": [S][T], "success_rate": [S][T]}``, read by :func:`curves_from_results`.
+- ``checker.transfer``: a metrics dict like ``checker.test`` (e.g. the 2Rooms checker on
+  3Rooms-Key), or null.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import numbers
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "CHECKER_METRICS",
+    "CHECKER_SPLITS",
+    "MODES",
+    "MODE_COLORS",
+    "MODE_LABELS",
+    "RESULTS_SCHEMA",
+    "ReportPaths",
+    "curves_from_results",
+    "mean_ci",
+    "plot_curves",
+    "results_table",
+    "summarise",
+    "t_quantile",
+    "validate_results",
+    "write_report",
+]
+
+# ----------------------------------------------------------------------------------------------
+# Schema
+# ----------------------------------------------------------------------------------------------
+
+#: Reward/cost modes in their canonical display order (DESIGN.md §7).
+MODES: tuple[str, ...] = ("checker", "shaped", "none", "lagrangian")
+
+#: One fixed colour per mode, shared by every figure.
+MODE_COLORS: dict[str, str] = {
+    "checker": "#1f77b4",  # blue: the paper's method
+    "shaped": "#2ca02c",  # green: ground-truth shaped baseline
+    "none": "#d62728",  # red: unconstrained
+    "lagrangian": "#9467bd",  # purple: PPO-Lagrangian on the checker's cost
+}
+
+MODE_LABELS: dict[str, str] = {
+    "checker": "checker-shaped",
+    "shaped": "ground-truth shaped",
+    "none": "unconstrained",
+    "lagrangian": "PPO-Lagrangian",
+}
+
+#: Metrics of the learned checker, all in [0, 1].
+CHECKER_METRICS: tuple[str, ...] = ("accuracy", "precision", "recall", "f1", "auroc", "ece")
+#: Checker evaluation splits shown in the table; ``test`` is required, the others may be null.
+CHECKER_SPLITS: tuple[str, ...] = ("test", "heldout", "transfer")
+
+_FINAL_KEYS = ("violation_rate", "mean_reward", "success_rate", "episodes")
+_CURVE_KEYS = ("step", "violation_rate", "mean_reward", "success_rate")
+_RATE_KEYS = frozenset({"violation_rate", "success_rate"})
+
+#: Human-readable description of ``results.json``. ``"rate"`` = float in [0, 1]; ``"float"`` =
+#: finite real; ``"int>=k"`` = integer >= k; ``"... | null"`` = may be null. Extra keys are
+#: allowed everywhere.
+RESULTS_SCHEMA: dict[str, Any] = {
+    "experiment": "str (non-empty)",
+    "config": "object (free-form run configuration)",
+    "checker": {
+        "test": {m: "rate" for m in CHECKER_METRICS},
+        "heldout": "same as test | null (key required; null when not measured)",
+        "transfer": "optional: same as test | null",
+    },
+    "methods": {
+        "<mode in checker|shaped|none|lagrangian> (at least one)": {
+            "final": {
+                "violation_rate": "rate",
+                "mean_reward": "float",
+                "success_rate": "rate",
+                "episodes": "int>=1",
+            },
+            "training_violations": "int>=0",
+            "curve": [
+                {
+                    "step": "int>=0 (non-decreasing along the list)",
+                    "violation_rate": "rate",
+                    "mean_reward": "float",
+                    "success_rate": "rate",
+                }
+            ],
+            "seeds": "int>=1",
+            "final_per_seed": "optional: {violation_rate|mean_reward|success_rate: [seeds]}",
+        }
+    },
+    "timing": {"total_s": "float>=0"},
+}
+
+
+def _is_int(x: Any) -> bool:
+    if isinstance(x, bool | np.bool_):
+        return False
+    return isinstance(x, numbers.Integral)
+
+
+def _is_real(x: Any) -> bool:
+    return (
+        isinstance(x, numbers.Real)
+        and not isinstance(x, bool | np.bool_)
+        and math.isfinite(float(x))
+    )
+
+
+def _fmt(x: Any) -> str:
+    s = repr(x)
+    return s if len(s) <= 60 else s[:57] + "..."
+
+
+def _require_mapping(d: Any, path: str) -> Mapping:
+    if not isinstance(d, Mapping):
+        raise ValueError(f"{path}: expected an object, got {type(d).__name__} {_fmt(d)}")
+    return d
+
+
+def _get(d: Mapping, key: str, path: str) -> Any:
+    if key not in d:
+        raise ValueError(f"{path + '.' if path else ''}{key}: missing required key")
+    return d[key]
+
+
+def _check_rate(x: Any, path: str) -> None:
+    if not _is_real(x) or not 0.0 <= float(x) <= 1.0:
+        raise ValueError(f"{path}: expected a float in [0, 1], got {_fmt(x)}")
+
+
+def _check_real(x: Any, path: str, minimum: float | None = None) -> None:
+    if not _is_real(x):
+        raise ValueError(f"{path}: expected a finite float, got {_fmt(x)}")
+    if minimum is not None and float(x) < minimum:
+        raise ValueError(f"{path}: expected a float >= {minimum}, got {_fmt(x)}")
+
+
+def _check_int(x: Any, path: str, minimum: int) -> None:
+    if not _is_int(x) or int(x) < minimum:
+        raise ValueError(f"{path}: expected an int >= {minimum}, got {_fmt(x)}")
+
+
+def _check_metrics(m: Any, path: str) -> None:
+    m = _require_mapping(m, path)
+    for k in CHECKER_METRICS:
+        _check_rate(_get(m, k, path), f"{path}.{k}")
+
+
+def validate_results(results: dict) -> None:
+    """Check ``results`` against :data:`RESULTS_SCHEMA`; return None or raise ``ValueError``.
+
+    The message starts with the dotted key path of the first offending value, e.g.
+    ``methods.checker.final.violation_rate: expected a float in [0, 1], got 1.3``. Numpy
+    scalars are accepted (validation may run before JSON serialisation); NaN/inf are not.
+    """
+    _require_mapping(results, "<results>")
+    exp = _get(results, "experiment", "")
+    if not isinstance(exp, str) or not exp:
+        raise ValueError(f"experiment: expected a non-empty str, got {_fmt(exp)}")
+    _require_mapping(_get(results, "config", ""), "config")
+
+    chk = _require_mapping(_get(results, "checker", ""), "checker")
+    _check_metrics(_get(chk, "test", "checker"), "checker.test")
+    if _get(chk, "heldout", "checker") is not None:
+        _check_metrics(chk["heldout"], "checker.heldout")
+    if chk.get("transfer") is not None:
+        _check_metrics(chk["transfer"], "checker.transfer")
+
+    methods = _require_mapping(_get(results, "methods", ""), "methods")
+    if not methods:
+        raise ValueError("methods: expected at least one mode, got an empty object")
+    for mode, entry in methods.items():
+        p = f"methods.{mode}"
+        if mode not in MODES:
+            raise ValueError(f"{p}: unknown mode {mode!r}; expected one of {', '.join(MODES)}")
+        entry = _require_mapping(entry, p)
+
+        final = _require_mapping(_get(entry, "final", p), f"{p}.final")
+        for k in _FINAL_KEYS:
+            v = _get(final, k, f"{p}.final")
+            if k == "episodes":
+                _check_int(v, f"{p}.final.episodes", 1)
+            elif k in _RATE_KEYS:
+                _check_rate(v, f"{p}.final.{k}")
+            else:
+                _check_real(v, f"{p}.final.{k}")
+
+        _check_int(_get(entry, "training_violations", p), f"{p}.training_violations", 0)
+        _check_int(_get(entry, "seeds", p), f"{p}.seeds", 1)
+        seeds = int(entry["seeds"])
+
+        curve = _get(entry, "curve", p)
+        if not isinstance(curve, Sequence) or isinstance(curve, str | bytes):
+            raise ValueError(f"{p}.curve: expected a list of points, got {_fmt(curve)}")
+        prev_step = -1
+        for i, point in enumerate(curve):
+            pp = f"{p}.curve[{i}]"
+            point = _require_mapping(point, pp)
+            for k in _CURVE_KEYS:
+                v = _get(point, k, pp)
+                if k == "step":
+                    _check_int(v, f"{pp}.step", 0)
+                    if int(v) < prev_step:
+                        raise ValueError(
+                            f"{pp}.step: steps must be non-decreasing, got {int(v)} after "
+                            f"{prev_step}"
+                        )
+                    prev_step = int(v)
+                elif k in _RATE_KEYS:
+                    _check_rate(v, f"{pp}.{k}")
+                else:
+                    _check_real(v, f"{pp}.{k}")
+
+        if entry.get("final_per_seed") is not None:
+            pp = f"{p}.final_per_seed"
+            fps = _require_mapping(entry["final_per_seed"], pp)
+            for k, vals in fps.items():
+                if k not in _RATE_KEYS | {"mean_reward"}:
+                    continue  # extra per-seed arrays are allowed
+                if not isinstance(vals, Sequence | np.ndarray) or isinstance(vals, str):
+                    raise ValueError(f"{pp}.{k}: expected a list, got {_fmt(vals)}")
+                if len(vals) != seeds:
+                    raise ValueError(
+                        f"{pp}.{k}: expected {seeds} values (one per seed), got {len(vals)}"
+                    )
+                for j, v in enumerate(vals):
+                    (_check_rate if k in _RATE_KEYS else _check_real)(v, f"{pp}.{k}[{j}]")
+
+    timing = _require_mapping(_get(results, "timing", ""), "timing")
+    _check_real(_get(timing, "total_s", "timing"), "timing.total_s", minimum=0.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# Statistics
+# ----------------------------------------------------------------------------------------------
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    """Continued fraction of the incomplete beta (modified Lentz; Numerical Recipes §6.4)."""
+    tiny = 1e-300
+    qab, qap, qam = a + b, a + 1.0, a - 1.0
+    c, d = 1.0, 1.0 - qab * x / qap
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 100_000):
+        m2 = 2 * m
+        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        h *= d * c
+        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        delta = d * c
+        h *= delta
+        if abs(delta - 1.0) < 1e-15:
+            break
+    return h
+
+
+def _betainc(a: float, b: float, x: float) -> float:
+    """Regularized incomplete beta function I_x(a, b) for a, b > 0 and x in [0, 1]."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    log_front = (
+        math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
+    )
+    front = math.exp(log_front)
+    if x < (a + 1.0) / (a + b + 2.0):
+        return front * _betacf(a, b, x) / a
+    return 1.0 - front * _betacf(b, a, 1.0 - x) / b
+
+
+def _t_sf(t: float, df: float) -> float:
+    """Upper tail P(T > t) of Student's t with ``df`` degrees of freedom, for t >= 0."""
+    if math.isinf(df):
+        return 0.5 * math.erfc(t / math.sqrt(2.0))
+    return 0.5 * _betainc(df / 2.0, 0.5, df / (df + t * t))
+
+
+def t_quantile(p: float, df: float) -> float:
+    """Quantile (inverse CDF) of Student's t distribution, without scipy.
+
+    ``P(T <= t_quantile(p, df)) = p``. The CDF is evaluated exactly through the regularized
+    incomplete beta function, ``P(T > t) = I_{df/(df+t^2)}(df/2, 1/2) / 2`` (continued fraction,
+    Numerical Recipes §6.4), and inverted by bisection to ~1e-12 relative accuracy; any real
+    ``df > 0`` works, and ``df = inf`` gives the normal quantile. E.g. ``t_quantile(0.975, 4)``
+    = 2.7764, ``t_quantile(0.975, inf)`` = 1.9600.
+    """
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"p: expected a probability in (0, 1), got {p!r}")
+    if not df > 0:
+        raise ValueError(f"df: expected df > 0, got {df!r}")
+    if p == 0.5:
+        return 0.0
+    if p < 0.5:
+        return -t_quantile(1.0 - p, df)
+    tail = 1.0 - p
+    lo, hi = 0.0, 1.0
+    while _t_sf(hi, df) > tail:  # bracket the root; sf is decreasing in t
+        lo, hi = hi, hi * 2.0
+        if hi > 1e300:
+            return math.inf
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if _t_sf(mid, df) > tail:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-13 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+def mean_ci(values: Any, axis: int = 0, confidence: float = 0.95) -> tuple[Any, Any, Any]:
+    """Mean and Student-t confidence interval of ``values`` along ``axis`` (e.g. over seeds).
+
+    Returns ``(mean, lo, hi)`` with ``lo/hi = mean -/+ t_{(1+c)/2, n-1} * s / sqrt(n)``, ``s`` the
+    sample standard deviation (ddof=1). With a single value along ``axis`` the interval is
+    degenerate: ``lo = hi = mean``. Results are Python floats for a 1-D input, arrays otherwise.
+    """
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence: expected a value in (0, 1), got {confidence!r}")
+    x = np.asarray(values, dtype=np.float64)
+    if x.ndim == 0:
+        raise ValueError("values: expected at least one dimension (the samples)")
+    n = x.shape[axis]
+    if n == 0:
+        raise ValueError(f"values: no samples along axis {axis}")
+    mean = x.mean(axis=axis)
+    if n == 1:
+        half = np.zeros_like(mean)
+    else:
+        sem = x.std(axis=axis, ddof=1) / math.sqrt(n)
+        half = t_quantile(0.5 + confidence / 2.0, n - 1) * sem
+    lo, hi = mean - half, mean + half
+    if np.ndim(mean) == 0:
+        return float(mean), float(lo), float(hi)
+    return mean, lo, hi
+
+
+# ----------------------------------------------------------------------------------------------
+# Figures
+# ----------------------------------------------------------------------------------------------
+
+
+def _ordered_modes(modes: Any) -> list[str]:
+    modes = list(modes)
+    return [m for m in MODES if m in modes] + [m for m in modes if m not in MODES]
+
+
+def _as_seed_matrix(a: Any, steps: int, path: str) -> np.ndarray:
+    x = np.asarray(a, dtype=np.float64)
+    if x.ndim == 1:
+        x = x[None, :]
+    if x.ndim != 2 or x.shape[1] != steps:
+        raise ValueError(f"{path}: expected shape (seeds, {steps}), got {np.shape(a)}")
+    return x
+
+
+def curves_from_results(results: Mapping) -> dict[str, dict[str, np.ndarray]]:
+    """Per-seed curves for :func:`plot_curves` from a results dict.
+
+    Uses ``methods.<mode>.curve_per_seed`` when present, otherwise the mean ``curve`` as a single
+    "seed" (then the plot has no CI band).
+    """
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for mode, entry in results["methods"].items():
+        per_seed = entry.get("curve_per_seed")
+        if per_seed is not None:
+            out[mode] = {k: np.asarray(v, dtype=np.float64) for k, v in per_seed.items()}
+            continue
+        curve = entry["curve"]
+        out[mode] = {"step": np.asarray([pt["step"] for pt in curve], dtype=np.float64)}
+        for k in ("violation_rate", "mean_reward", "success_rate"):
+            out[mode][k] = np.asarray([[pt[k] for pt in curve]], dtype=np.float64)
+    return out
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def plot_curves(
+    per_seed_curves: Mapping[str, Mapping[str, Any]],
+    path: str | os.PathLike,
+    title: str | None = None,
+    *,
+    confidence: float = 0.95,
+    dpi: int = 120,
+    figsize: tuple[float, float] = (11.0, 4.2),
+) -> Path:
+    """Write a two-panel PNG: violation % and mean episode reward against env steps.
+
+    ``per_seed_curves`` maps a mode to ``{"step": (T,), "violation_rate": (S, T),
+    "mean_reward": (S, T)}`` (``success_rate`` optional and not drawn; a (T,) array counts as one
+    seed). Each mode is a line (mean over seeds) with a shaded ``confidence`` Student-t band,
+    in the fixed :data:`MODE_COLORS`. The image is ``figsize * dpi`` pixels (1320 x 504 by
+    default). Written atomically; returns the path.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import EngFormatter
+
+    if not per_seed_curves:
+        raise ValueError("per_seed_curves: expected at least one mode")
+    path = Path(path)
+    fig = Figure(figsize=figsize, dpi=dpi, layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_v, ax_r = fig.subplots(1, 2)
+    extra_colors = iter(["#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"])
+    for mode in _ordered_modes(per_seed_curves):
+        c = per_seed_curves[mode]
+        if "step" not in c:
+            raise ValueError(f"{mode}.step: missing")
+        step = np.asarray(c["step"], dtype=np.float64)
+        if step.ndim != 1:
+            raise ValueError(f"{mode}.step: expected shape (T,), got {step.shape}")
+        color = MODE_COLORS.get(mode) or next(extra_colors, "#000000")
+        for ax, key, scale in ((ax_v, "violation_rate", 100.0), (ax_r, "mean_reward", 1.0)):
+            if key not in c:
+                raise ValueError(f"{mode}.{key}: missing")
+            y = _as_seed_matrix(c[key], step.shape[0], f"{mode}.{key}") * scale
+            mean, lo, hi = mean_ci(y, axis=0, confidence=confidence)
+            seeds = y.shape[0]
+            label = f"{MODE_LABELS.get(mode, mode)} (n={seeds})"
+            ax.plot(step, mean, color=color, lw=1.8, label=label)
+            if seeds > 1:
+                ax.fill_between(step, lo, hi, color=color, alpha=0.2, lw=0)
+    pct = int(round(confidence * 100))
+    ax_v.set_ylabel("episodes with a violation (%)")
+    ax_v.set_title("Constraint violations")
+    ax_v.set_ylim(bottom=0)
+    ax_r.set_ylabel("mean episode reward (env reward)")
+    ax_r.set_title("Task reward")
+    for ax in (ax_v, ax_r):
+        ax.set_xlabel("environment steps")
+        ax.xaxis.set_major_formatter(EngFormatter(sep=""))
+        ax.grid(True, alpha=0.3)
+    ax_r.legend(loc="best", fontsize=8, title=f"mean ± {pct}% CI over seeds", title_fontsize=8)
+    if title:
+        fig.suptitle(title)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    _atomic_write_bytes(path, buf.getvalue())
+    return path
+
+
+# ----------------------------------------------------------------------------------------------
+# Tables, files, console
+# ----------------------------------------------------------------------------------------------
+
+
+def _cell(entry: Mapping, key: str, scale: float, digits: int) -> str:
+    """``mean ± half-width`` from ``final_per_seed`` when there are >= 2 seeds, else the final."""
+    per_seed = (entry.get("final_per_seed") or {}).get(key)
+    if per_seed is not None and len(per_seed) >= 2:
+        mean, lo, hi = mean_ci(np.asarray(per_seed, dtype=np.float64) * scale)
+        return f"{mean:.{digits}f} ± {(hi - lo) / 2:.{digits}f}"
+    return f"{float(entry['final'][key]) * scale:.{digits}f}"
+
+
+def results_table(results: Mapping) -> str:
+    """Markdown tables: one row per mode, then the checker metrics per split.
+
+    Method columns: final violation %, mean reward, success % (``mean ± 95% CI half-width``
+    over seeds when ``final_per_seed`` is present, else the pooled final value), training
+    violations, seeds, final evaluation episodes. Checker rows: test, heldout, transfer
+    (``n/a`` when null or absent).
+    """
+    lines = [
+        "| Method | Final violation % | Mean reward | Success % | Training violations | Seeds "
+        "| Eval episodes |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    methods = results["methods"]
+    for mode in _ordered_modes(methods):
+        e = methods[mode]
+        lines.append(
+            f"| {mode} ({MODE_LABELS.get(mode, mode)}) "
+            f"| {_cell(e, 'violation_rate', 100.0, 1)} "
+            f"| {_cell(e, 'mean_reward', 1.0, 3)} "
+            f"| {_cell(e, 'success_rate', 100.0, 1)} "
+            f"| {int(e['training_violations'])} "
+            f"| {int(e['seeds'])} "
+            f"| {int(e['final']['episodes'])} |"
+        )
+    lines += [
+        "",
+        "Final values: mean ± 95% Student-t CI half-width over seeds where per-seed values exist.",
+        "",
+        "| Checker split | Accuracy | Precision | Recall | F1 | AUROC | ECE |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    chk = results.get("checker") or {}
+    for split in CHECKER_SPLITS:
+        m = chk.get(split)
+        if m is None:
+            if split == "transfer":
+                continue  # only shown by experiments that measure transfer
+            lines.append(f"| {split} |" + " n/a |" * len(CHECKER_METRICS))
+            continue
+        lines.append(f"| {split} |" + "".join(f" {float(m[k]):.3f} |" for k in CHECKER_METRICS))
+    return "\n".join(lines) + "\n"
+
+
+def _jsonable(x: Any) -> Any:
+    """Numpy -> Python, tuples -> lists, non-finite floats -> None (strict JSON)."""
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, bool | np.bool_):
+        return bool(x)
+    if isinstance(x, numbers.Integral):
+        return int(x)
+    if isinstance(x, numbers.Real):
+        f = float(x)
+        return f if math.isfinite(f) else None
+    if isinstance(x, os.PathLike):
+        return os.fspath(x)
+    return x
+
+
+class ReportPaths(NamedTuple):
+    """Files written by :func:`write_report`."""
+
+    json: Path
+    md: Path
+
+
+def _format_duration(seconds: float) -> str:
+    s = int(round(seconds))
+    h, rem = divmod(s, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}h {m:02d}m {s:02d}s" if h else f"{m}m {s:02d}s"
+
+
+def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
+    """Validate ``results`` then atomically write ``results.json`` and ``results.md``.
+
+    Raises ``ValueError`` (see :func:`validate_results`) before touching the filesystem when
+    ``results`` is invalid. Numpy values are converted, NaN/inf extras become null. Each file
+    goes to a temporary file in ``out_dir`` and is moved in place with ``os.replace``, so a
+    reader never sees a partial file. Returns ``ReportPaths(json, md)``.
+    """
+    validate_results(results)
+    out = Path(out_dir)
+    text = json.dumps(_jsonable(results), indent=2, allow_nan=False) + "\n"
+    md = (
+        f"# Results: {results['experiment']}\n\n"
+        + results_table(results)
+        + f"\nTotal wall time: {_format_duration(float(results['timing']['total_s']))}.\n"
+    )
+    json_path, md_path = out / "results.json", out / "results.md"
+    _atomic_write_bytes(json_path, text.encode("utf-8"))
+    _atomic_write_bytes(md_path, md.encode("utf-8"))
+    return ReportPaths(json_path, md_path)
+
+
+def summarise(results: Mapping) -> str:
+    """Short multi-line console summary: one line per mode, the checker AUROC and wall time."""
+    lines = [f"{results.get('experiment', '?')}:"]
+    methods = results["methods"]
+    width = max(len(m) for m in methods)
+    for mode in _ordered_modes(methods):
+        e = methods[mode]
+        lines.append(
+            f"  {mode:<{width}}  violations {_cell(e, 'violation_rate', 100.0, 1)}%"
+            f"  reward {_cell(e, 'mean_reward', 1.0, 3)}"
+            f"  success {_cell(e, 'success_rate', 100.0, 1)}%"
+            f"  training violations {int(e['training_violations'])}"
+            f"  ({int(e['seeds'])} seeds, {int(e['final']['episodes'])} episodes)"
+        )
+    chk = results.get("checker") or {}
+    parts = [
+        f"{split} {float(chk[split]['auroc']):.3f}"
+        for split in CHECKER_SPLITS
+        if chk.get(split) is not None
+    ]
+    lines.append("  checker AUROC: " + (", ".join(parts) if parts else "n/a"))
+    total = (results.get("timing") or {}).get("total_s")
+    if total is not None:
+        lines.append(f"  total time: {_format_duration(float(total))}")
+    return "\n".join(lines)
