@@ -6,7 +6,7 @@
 >>> state, ts = env.step(state, 2)  # forward
 """
 
-from jaxgrid import constants, wrappers
+from jaxgrid import constants, render, video, wrappers  # render/video: cheap, no side effects
 from jaxgrid.ascii import from_ascii
 from jaxgrid.environment import Environment
 from jaxgrid.registry import make, register, registered_ids
@@ -21,6 +21,8 @@ __all__ = [
     "make",
     "register",
     "registered_ids",
+    "render",
+    "video",
     "wrappers",
 ]
 __version__ = "0.1.0"

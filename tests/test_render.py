@@ -145,3 +145,56 @@ def test_examples_run(tmp_path, monkeypatch, capsys):
         runpy.run_path(str(ROOT / "examples" / script), run_name="__main__")
     assert (tmp_path / "two_rooms.gif").stat().st_size > 0
     assert "episodes ended" in capsys.readouterr().out
+
+
+README_SECTIONS = (
+    "### Your own level from an ASCII map",
+    "## Rendering, GIFs and videos",
+    "## Gymnasium",
+    "## Using jaxgrid in your own JAX project",
+    "### Constraint-language reference",
+    "### Adding a scenario",
+)
+
+
+def readme_blocks() -> list[tuple[str, str]]:
+    """``(heading, code)`` of every python block in the README sections this suite covers."""
+    heading, out, block = None, [], None
+    for line in (ROOT / "README.md").read_text().splitlines():
+        if block is not None:
+            if line.startswith("```"):
+                out.append((heading, "\n".join(block)))
+                block = None
+            else:
+                block.append(line)
+        elif line.startswith("```python") and heading in README_SECTIONS:
+            block = []
+        elif line.startswith("#") and not line.startswith("#!"):
+            heading = line.strip()
+    return out
+
+
+def test_readme_examples_run(tmp_path, monkeypatch, capsys):
+    """Every python block of the README sections above runs as written, in order, in one
+    namespace that starts with the Quickstart's ``import jax, jaxgrid``."""
+    import gymnasium as gym
+
+    from jaxgrid import registry
+
+    blocks = readme_blocks()
+    assert {h for h, _ in blocks} == set(README_SECTIONS)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(registry, "_USER", {})  # ids the examples register vanish afterwards
+    namespace = {"__name__": "__readme__"}
+    exec("import jax, jaxgrid", namespace)
+    try:
+        for heading, code in blocks:
+            try:
+                exec(compile(code, f"README.md {heading}", "exec"), namespace)
+            except Exception as e:  # pragma: no cover - the message names the section
+                raise AssertionError(f"README example under {heading!r} failed: {e!r}") from e
+    finally:
+        for gym_id in ("jaxgrid/MyLevel-v0", "jaxgrid/Corridor-v0"):
+            gym.registry.pop(gym_id, None)
+    assert (tmp_path / "two_rooms.gif").stat().st_size > 0
+    assert "##" in capsys.readouterr().out  # the ANSI maps were printed
