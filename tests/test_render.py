@@ -198,3 +198,13 @@ def test_readme_examples_run(tmp_path, monkeypatch, capsys):
             gym.registry.pop(gym_id, None)
     assert (tmp_path / "two_rooms.gif").stat().st_size > 0
     assert "##" in capsys.readouterr().out  # the ANSI maps were printed
+
+
+def test_mp4_written(tmp_path):
+    pytest.importorskip("imageio_ffmpeg")
+    iio = pytest.importorskip("imageio.v3")
+    from jaxgrid.video import save_video
+
+    frames = np.random.default_rng(0).integers(0, 255, (3, 33, 47, 3), dtype=np.uint8)  # odd sizes
+    path = save_video(frames, tmp_path / "ep.mp4", fps=2)
+    assert iio.improps(path).shape[-3:] == (34, 48, 3)
