@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import os
+import warnings
 from collections.abc import Callable, Sequence
 
 import jax
@@ -195,7 +196,11 @@ def save_video(frames, path: str | os.PathLike, fps: float = 5.0) -> str:
     frames = np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)), constant_values=255)
     path = os.fspath(path)
     try:
-        iio2.mimwrite(path, list(frames), fps=fps, macro_block_size=2, format="FFMPEG")
+        with warnings.catch_warnings():
+            # imageio-ffmpeg starts ffmpeg with subprocess (fork + exec at once), which is safe;
+            # JAX's generic "os.fork() was called" warning does not apply.
+            warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called")
+            iio2.mimwrite(path, list(frames), fps=fps, macro_block_size=2, format="FFMPEG")
     except (ImportError, ValueError, RuntimeError) as e:
         raise RuntimeError(
             f"could not write {path!r} with imageio's ffmpeg plugin ({e}); "
