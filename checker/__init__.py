@@ -1,1 +1,38 @@
-"""checker package (see ../shared/DESIGN.md §1)."""
+"""Constraint checker (DESIGN.md §6): does the agent's recent trajectory, read with the
+constraint's sentence, mean a violation is about to happen?
+
+* :mod:`checker.model`: the Flax network (:class:`Checker`, :class:`CheckerConfig`);
+* :mod:`checker.trained`: :class:`TrainedChecker` (params + config pytree), :func:`save`,
+  :func:`load`;
+* :mod:`checker.reward`: the on-device ring buffer (:func:`init_buffer`, :func:`push`) and
+  :func:`violation_prob`, what the PPO step calls every env step;
+* :mod:`checker.data`: auto-labelled datasets collected on device (:func:`collect`);
+* :mod:`checker.policies`: behaviour policies for collection;
+* :mod:`checker.train`: :func:`train_checker` and the ``python -m checker.train`` CLI;
+* :mod:`checker.metrics`: classification metrics, lead time, :func:`evaluate`.
+
+``checker`` imports ``jaxgrid`` only (never ``agents`` or ``experiments``).
+"""
+
+from checker.data import CheckerDataset, collect, collect_episodes
+from checker.model import Checker, CheckerConfig
+from checker.policies import NoisyOracleParams, noisy_oracle_policy, random_policy
+from checker.reward import init_buffer, push, violation_prob
+from checker.trained import TrainedChecker, load, save
+
+__all__ = [
+    "Checker",
+    "CheckerConfig",
+    "CheckerDataset",
+    "NoisyOracleParams",
+    "TrainedChecker",
+    "collect",
+    "collect_episodes",
+    "init_buffer",
+    "load",
+    "noisy_oracle_policy",
+    "push",
+    "random_policy",
+    "save",
+    "violation_prob",
+]

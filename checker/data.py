@@ -1,0 +1,612 @@
+"""Auto-labelled checker data, collected fully on device (DESIGN.md §6).
+
+Rollouts
+--------
+:func:`collect` runs ``num_envs`` copies of ``jaxgrid.wrappers.AutoReset(env)`` under ``vmap``
+inside ``lax.scan``, the behaviour policy choosing the actions (a function argument, so this
+package never imports ``agents``). Each env yields a *stream* of positions ``i = 0, 1, ...``:
+position 0 is the reset observation, position ``i >= 1`` the observation returned by step
+``i``. After an auto-reset that is the *next* episode's first observation, exactly what the
+PPO learner sees.
+
+Windows
+-------
+The window of position ``i`` is the ring buffer of :mod:`checker.reward` after pushing the
+observations of positions ``0..i`` with ``episode_start = terminated | truncated`` (and
+``True`` at position 0): the same :func:`checker.reward.push` the PPO step calls, so the
+checker is trained on what PPO feeds it. A window holds the last ``window`` observations of
+the current episode, oldest first; at the start of an episode the missing older frames are
+all-zero ("unseen" cells).
+
+Labels
+------
+Within one episode, ``obs_t`` is the observation after step ``t`` (``obs_0`` after reset) and
+``v_t`` is ``info["violation"]`` of the step that produced ``obs_t`` (``v_0 = 0``). The window
+ending at ``obs_t`` is labelled
+
+* ``lookahead = k >= 1`` ("just before", the paper): 1 iff ``v_{t+j} = 1`` for some
+  ``j in 1..k``, counting only steps of the same episode; the step that ends the episode
+  still counts (entering lethal lava is a violation on the final step), the steps of the
+  next episode never do;
+* ``lookahead = 0`` ("after", the ablation): 1 iff ``v_t = 1``.
+
+Windows are only those PPO's ring buffer holds. The observation after an episode's final step
+is replaced by the next episode's first one (``AutoReset``), so it never ends a window: with
+``lookahead = 0`` a violation on a final step (lethal lava, or a door entered on the
+truncation step) has no window and yields no positive, while with ``lookahead >= 1`` it
+labels the windows before it as usual. Windows whose label horizon ``t+1..t+k`` runs past the
+end of the collected rollout are dropped (the last ``k`` positions of every env).
+
+Balancing
+---------
+Violations are rare, so with ``balance=True`` the rollout goes on, in chunks of
+``chunk_steps`` steps, until it holds at least ``ceil(num_samples / 2)`` positive windows (or
+``max_steps`` steps per env; ``num_steps`` fixes the length instead). Then ``ceil(num_samples
+/ 2)`` positives and ``num_samples - ceil(num_samples / 2)`` negatives are drawn uniformly
+without replacement from all eligible windows. When one class is short, all of it is taken
+and the other fills the rest, so the dataset always has ``min(num_samples, eligible)`` rows
+and the achieved positive fraction is recorded as ``meta["positive_fraction"]``; the rate
+over all eligible windows is ``meta["natural_positive_rate"]``.
+
+Full episodes
+-------------
+With ``balance=False`` (or :func:`collect_episodes`) every eligible window is kept, in
+env-major order (env 0 positions 0, 1, ..., env 1, ...), and each row also carries
+``env_index``, ``position``, ``episode`` (unique id), ``step`` (``t``), ``step_violation``
+(``v_t``), ``next_violation`` (``v_{t+1}`` within the episode, whatever ``lookahead``) and
+``complete`` (the episode ended within the rollout): what the lead-time metric needs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from checker.reward import init_buffer, push
+from checker.trained import check_vocab
+from jaxgrid import language
+from jaxgrid.wrappers import AutoReset
+
+__all__ = ["CheckerDataset", "collect", "collect_episodes", "compute_labels", "validate_window"]
+
+FORMAT_VERSION = 1
+MAX_WINDOW = 64
+_CORE = ("windows", "tokens", "labels", "template_id", "constraint_type", "scenario")
+EPISODE_FIELDS = (
+    "env_index", "position", "episode", "step", "step_violation", "next_violation", "complete",
+)  # fmt: skip
+
+
+def validate_window(window: Any, lookahead: Any) -> None:
+    """``ValueError`` naming the field unless ``1 <= window <= 64`` and ``0 <= lookahead <=
+    4 * window`` (both ints)."""
+    if not isinstance(window, (int, np.integer)) or isinstance(window, bool):
+        raise ValueError(f"window must be an int, got {window!r}")
+    if not 1 <= window <= MAX_WINDOW:
+        raise ValueError(f"window must be in [1, {MAX_WINDOW}], got {window}")
+    if not isinstance(lookahead, (int, np.integer)) or isinstance(lookahead, bool):
+        raise ValueError(f"lookahead must be an int, got {lookahead!r}")
+    if not 0 <= lookahead <= 4 * window:
+        raise ValueError(
+            f"lookahead must be in [0, 4 * window] = [0, {4 * window}] for window={window}, "
+            f"got {lookahead}"
+        )
+
+
+# --------------------------------------------------------------------------------------
+# Dataset container
+# --------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class CheckerDataset:
+    """Numpy arrays of ``N`` windows and their labels, plus metadata.
+
+    Attributes:
+        windows: uint8 ``(N, n, V, V, 3)``, oldest frame first.
+        tokens: int32 ``(N, L)`` constraint token ids.
+        labels: uint8 ``(N,)``, 1 = violation within the lookahead (see the module docs).
+        template_id: int32 ``(N,)``, ``jaxgrid.language.TEMPLATES`` index.
+        constraint_type: int32 ``(N,)``, paper type 1-5.
+        scenario: str ``(N,)``, the env id each row came from.
+        extras: per-row arrays of full-episode datasets (:data:`EPISODE_FIELDS`), else empty.
+        meta: JSON-serialisable metadata (env id, split, window, lookahead, rates, counts...).
+    """
+
+    windows: np.ndarray
+    tokens: np.ndarray
+    labels: np.ndarray
+    template_id: np.ndarray
+    constraint_type: np.ndarray
+    scenario: np.ndarray
+    extras: dict = dataclasses.field(default_factory=dict)
+    meta: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        n = len(self.labels)
+        for name in _CORE:
+            if len(getattr(self, name)) != n:
+                raise ValueError(
+                    f"CheckerDataset.{name} has {len(getattr(self, name))} rows, labels has {n}"
+                )
+        for name, arr in self.extras.items():
+            if len(arr) != n:
+                raise ValueError(f"CheckerDataset.extras[{name!r}] has {len(arr)} rows, not {n}")
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    @property
+    def window(self) -> int:
+        return int(self.windows.shape[1])
+
+    @property
+    def positive_fraction(self) -> float:
+        return float(np.mean(self.labels)) if len(self) else 0.0
+
+    def subset(self, index: np.ndarray) -> CheckerDataset:
+        """Rows ``index`` (an int or bool array) as a new dataset; metadata counts updated."""
+        index = np.asarray(index)
+        arrays = {name: getattr(self, name)[index] for name in _CORE}
+        extras = {k: v[index] for k, v in self.extras.items()}
+        meta = dict(self.meta)
+        meta["num_samples"] = int(len(arrays["labels"]))
+        meta["num_positive"] = int(np.sum(arrays["labels"]))
+        meta["positive_fraction"] = float(np.mean(arrays["labels"])) if len(index) else 0.0
+        return CheckerDataset(**arrays, extras=extras, meta=meta)
+
+    def split(self, fractions: Sequence[float], seed: int = 0) -> tuple[CheckerDataset, ...]:
+        """Random disjoint parts of sizes ``fractions`` (summing to 1).
+
+        Balanced datasets are split per class (stratified), so each part keeps the positive
+        fraction; full-episode datasets are split by whole episodes.
+        """
+        fractions = [float(f) for f in fractions]
+        if not fractions or any(f < 0 for f in fractions) or abs(sum(fractions) - 1) > 1e-6:
+            raise ValueError(f"split fractions must be >= 0 and sum to 1, got {fractions}")
+        rng = np.random.default_rng(seed)
+        parts: list[list[np.ndarray]] = [[] for _ in fractions]
+        if "episode" in self.extras:
+            groups = [np.unique(self.extras["episode"])]
+            keys = self.extras["episode"]
+        else:
+            groups = [np.flatnonzero(self.labels == c) for c in (0, 1)]
+            keys = None
+        for members in groups:
+            members = rng.permutation(members)
+            bounds = np.round(np.cumsum([0.0] + fractions) * len(members)).astype(int)
+            for p in range(len(fractions)):
+                chosen = members[bounds[p] : bounds[p + 1]]
+                parts[p].append(chosen if keys is None else np.flatnonzero(np.isin(keys, chosen)))
+        out = []
+        for p in parts:
+            idx = (
+                np.sort(np.concatenate(p))
+                if keys is not None
+                else rng.permutation(np.concatenate(p))
+            )
+            out.append(self.subset(idx))
+        return tuple(out)
+
+    # ---------------------------------------------------------------- persistence
+    @staticmethod
+    def _paths(path: str | os.PathLike) -> tuple[str, str]:
+        base = os.fspath(path)
+        if base.endswith(".npz"):
+            base = base[:-4]
+        elif base.endswith(".json"):
+            base = base[:-5]
+        return base + ".npz", base + ".json"
+
+    def save(self, path: str | os.PathLike) -> tuple[str, str]:
+        """Write ``<path>.npz`` (arrays) and ``<path>.json`` (metadata); returns both paths."""
+        npz, js = self._paths(path)
+        os.makedirs(os.path.dirname(os.path.abspath(npz)), exist_ok=True)
+        arrays = {name: getattr(self, name) for name in _CORE}
+        arrays.update({f"extra_{k}": v for k, v in self.extras.items()})
+        np.savez_compressed(npz, **arrays)
+        meta = {
+            "format_version": FORMAT_VERSION,
+            **self.meta,
+            "vocab": list(language.VOCAB),
+            "max_len": language.MAX_LEN,
+        }
+        with open(js, "w") as f:
+            json.dump(meta, f, indent=2)
+        return npz, js
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> CheckerDataset:
+        """Read a dataset written by :meth:`save` (``path`` with or without extension).
+
+        ``FileNotFoundError`` names a missing file; ``ValueError`` if it was made for another
+        vocabulary or ``MAX_LEN``.
+        """
+        npz, js = cls._paths(path)
+        for p in (js, npz):
+            if not os.path.isfile(p):
+                raise FileNotFoundError(f"checker dataset file not found: {p}")
+        with open(js) as f:
+            try:
+                meta = json.load(f)
+            except json.JSONDecodeError as e:
+                raise ValueError(f"{js} is not valid JSON: {e}") from e
+        check_vocab(meta, f"dataset {js}")
+        with np.load(npz, allow_pickle=False) as z:
+            arrays = {name: z[name] for name in _CORE}
+            extras = {k[len("extra_") :]: z[k] for k in z.files if k.startswith("extra_")}
+        meta = {k: v for k, v in meta.items() if k not in ("vocab", "max_len", "format_version")}
+        return cls(**arrays, extras=extras, meta=meta)
+
+
+# --------------------------------------------------------------------------------------
+# Labels
+# --------------------------------------------------------------------------------------
+
+
+def compute_labels(start: jax.Array, violation: jax.Array, lookahead: int):
+    """Labels and eligibility of every stream position (time-major arrays ``(T, E)``).
+
+    ``start[i]``: position ``i`` holds an episode's first observation (``True`` at 0 and
+    after every ``terminated | truncated`` step); ``violation[i]``: the step into position
+    ``i`` violated (it belongs to the episode of position ``i - 1``). Returns ``(labels,
+    eligible)``, bool ``(T, E)``; see the module docstring.
+    """
+    start = jnp.asarray(start, bool)
+    violation = jnp.asarray(violation, bool)
+    t = start.shape[0]
+    if lookahead == 0:
+        return violation & ~start, jnp.ones_like(start)
+
+    def shifted(x, j):  # x[i + j], False past the end
+        return jnp.concatenate([x[j:], jnp.zeros((j,) + x.shape[1:], bool)], axis=0)
+
+    labels = jnp.zeros_like(start)
+    alive = jnp.ones_like(start)  # no episode start in positions i+1 .. i+j-1
+    for j in range(1, lookahead + 1):
+        labels = labels | (alive & shifted(violation, j))
+        alive = alive & ~shifted(start, j)
+    eligible = (jnp.arange(t) < t - lookahead)[:, None] & jnp.ones_like(start)
+    return labels, eligible
+
+
+# --------------------------------------------------------------------------------------
+# Rollout on device
+# --------------------------------------------------------------------------------------
+
+
+def _record(state, ts, start, violation):
+    c = state.extras.constraint
+    return {
+        "image": ts.observation["image"].astype(jnp.uint8),
+        "start": start,
+        "violation": violation,
+        "tokens": ts.observation["constraint"].astype(jnp.uint8),
+        "template_id": c.template_id.astype(jnp.int8),
+        "constraint_type": c.paper_type.astype(jnp.int8),
+    }
+
+
+@functools.partial(jax.jit, static_argnames=("num_envs",))
+def _reset(env, key, *, num_envs):
+    states, ts = jax.vmap(env.reset)(jax.random.split(key, num_envs))
+    ones = jnp.ones((num_envs,), bool)
+    rec = _record(states, ts, ones, jnp.zeros((num_envs,), bool))
+    return (states, ts.observation), jax.tree.map(lambda x: x[None], rec)
+
+
+@functools.partial(jax.jit, static_argnames=("policy_fn", "num_steps"))
+def _rollout(env, policy_fn, policy_params, carry, key, *, num_steps):
+    def body(carry, k):
+        states, obs = carry
+        actions = policy_fn(policy_params, obs, states, k).astype(jnp.int32)
+        states, ts = jax.vmap(env.step)(states, actions)
+        done = ts.terminated | ts.truncated
+        rec = _record(states, ts, done, ts.info["violation"].astype(bool))
+        return (states, ts.observation), rec
+
+    carry, recs = lax.scan(body, carry, jax.random.split(key, num_steps))
+    return carry, recs
+
+
+@functools.partial(jax.jit, static_argnames=("num_samples", "lookahead"))
+def _select_balanced(start, violation, key, *, num_samples, lookahead):
+    labels, eligible = compute_labels(start, violation, lookahead)
+    flat_l, flat_e = labels.reshape(-1), eligible.reshape(-1)
+    pos, neg = flat_e & flat_l, flat_e & ~flat_l
+    n_pos_avail, n_neg_avail = jnp.sum(pos), jnp.sum(neg)
+    half = (num_samples + 1) // 2
+    n_pos = jnp.minimum(n_pos_avail, jnp.maximum(half, num_samples - n_neg_avail))
+    n_neg = jnp.minimum(n_neg_avail, num_samples - n_pos)
+    u = jax.random.uniform(key, flat_l.shape)
+
+    def ranks(mask):  # rank of each member by u, members first
+        order = jnp.argsort(jnp.where(mask, u, 2.0))
+        return jnp.zeros_like(order).at[order].set(jnp.arange(order.size, dtype=order.dtype))
+
+    r_pos, r_neg = ranks(pos), ranks(neg)
+    slot = jnp.where(
+        pos & (r_pos < n_pos), r_pos, jnp.where(neg & (r_neg < n_neg), n_pos + r_neg, num_samples)
+    )
+    counts = {
+        "eligible": jnp.sum(flat_e),
+        "positive_eligible": n_pos_avail,
+        "num_positive": n_pos,
+        "num_negative": n_neg,
+    }
+    return slot.reshape(labels.shape).astype(jnp.int32), labels, counts
+
+
+@functools.partial(jax.jit, static_argnames=("num_slots", "window"))
+def _gather_windows(image, start, slot, *, num_slots, window):
+    """Replay the stream through :func:`push`, writing each position's window to its slot."""
+    t, e, v = image.shape[0], image.shape[1], image.shape[2]
+    out = jnp.zeros((num_slots, window, v, v, 3), jnp.uint8)
+
+    def body(carry, x):
+        buf, out = carry
+        img, st, sl = x
+        buf = push(buf, img, st)
+        out = out.at[sl].set(buf, mode="drop")
+        return (buf, out), None
+
+    (_, out), _ = lax.scan(body, (init_buffer(e, window, v), out), (image, start, slot))
+    del t
+    return out
+
+
+def _check_env(env) -> AutoReset:
+    wrapped = env if isinstance(env, AutoReset) else AutoReset(env)
+    try:
+        _, ts = jax.eval_shape(wrapped.reset, jax.random.PRNGKey(0))
+    except Exception as e:  # pragma: no cover - depends on the env
+        raise ValueError(f"collect: env.reset failed under eval_shape: {e}") from e
+    if "constraint" not in ts.observation or "violation" not in ts.info:
+        raise ValueError(
+            "collect needs a constrained scenario env (observation['constraint'] and "
+            "info['violation']), e.g. jaxgrid.make('TwoRooms-v0')"
+        )
+    return wrapped
+
+
+def _check_positive_int(name: str, value: Any) -> int:
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+        raise ValueError(f"{name} must be a positive int, got {value!r}")
+    return int(value)
+
+
+def _env_name(env, env_id: str | None) -> str:
+    if env_id is not None:
+        return str(env_id)
+    inner = env.env if isinstance(env, AutoReset) else env
+    return type(inner).__name__
+
+
+def _stream(env, policy_fn, policy_params, key, num_envs, num_steps, chunk_steps, enough):
+    """Run the rollout in chunks; ``enough(recs_of_chunk) -> bool`` stops it early.
+
+    Returns the concatenated time-major records (position 0 = reset) on device.
+    """
+    k_reset, key = jax.random.split(key)
+    carry, first = _reset(env, k_reset, num_envs=num_envs)
+    recs = [first]
+    steps = 0
+    while steps < num_steps:
+        n = min(chunk_steps, num_steps - steps)
+        key, k = jax.random.split(key)
+        carry, chunk = _rollout(env, policy_fn, policy_params, carry, k, num_steps=n)
+        recs.append(chunk)
+        steps += n
+        if enough is not None and enough(chunk):
+            break
+    return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *recs), steps
+
+
+def collect(
+    env,
+    policy_fn: Callable,
+    policy_params: Any,
+    key: jax.Array,
+    num_samples: int | None = None,
+    window: int = 5,
+    lookahead: int = 1,
+    num_envs: int = 256,
+    balance: bool = True,
+    *,
+    num_steps: int | None = None,
+    max_steps: int = 4096,
+    chunk_steps: int = 64,
+    env_id: str | None = None,
+) -> CheckerDataset:
+    """Roll out ``policy_fn`` in ``num_envs`` auto-reset copies of ``env`` and label windows.
+
+    Args:
+        env: a constrained scenario (e.g. ``jaxgrid.make("TwoRooms-v0")``), raw or wrapped in
+            ``AutoReset``.
+        policy_fn: ``policy_fn(policy_params, obs, state, key) -> int32 (num_envs,)`` actions;
+            hashable (it is a static argument of the compiled rollout).
+        policy_params: pytree passed to ``policy_fn``.
+        key: PRNG key of the whole collection.
+        num_samples: rows wanted (``balance=True``); ignored with ``balance=False``.
+        window: observations per window (1-64).
+        lookahead: label horizon ``k`` in ``0..4 * window`` (see the module docstring).
+        num_envs: parallel envs.
+        balance: balanced subsample (True) or every window of full episodes (False).
+        num_steps: steps per env; default: as many as needed for ``ceil(num_samples / 2)``
+            positives (``balance=True``, at most ``max_steps``), required when
+            ``balance=False``.
+        max_steps: cap on steps per env when ``num_steps`` is not given.
+        chunk_steps: steps per compiled chunk when collecting until enough positives.
+        env_id: recorded as ``meta["env_id"]`` and ``scenario`` (default: the env's class).
+
+    Every argument is validated (``ValueError`` naming it) before anything is compiled.
+    """
+    validate_window(window, lookahead)
+    window, lookahead = int(window), int(lookahead)
+    num_envs = _check_positive_int("num_envs", num_envs)
+    chunk_steps = _check_positive_int("chunk_steps", chunk_steps)
+    max_steps = _check_positive_int("max_steps", max_steps)
+    if balance:
+        num_samples = _check_positive_int("num_samples", num_samples)
+    if num_steps is not None:
+        num_steps = _check_positive_int("num_steps", num_steps)
+    elif not balance:
+        raise ValueError("num_steps is required with balance=False (full episodes)")
+    wrapped = _check_env(env)
+    name = _env_name(env, env_id)
+    split = getattr(wrapped.env, "split", None)
+
+    enough = None
+    target = num_steps if num_steps is not None else max_steps
+    if balance and num_steps is None:
+        needed = (num_samples + 1) // 2
+        found = [0]
+
+        def enough(chunk):
+            # Exact count of positives for k in {0, 1}, a lower bound for k > 1.
+            new = chunk["violation"] & (~chunk["start"] if lookahead == 0 else True)
+            found[0] += int(jnp.sum(new))
+            return found[0] >= needed
+
+    recs, steps = _stream(
+        wrapped, policy_fn, policy_params, key, num_envs, target, chunk_steps, enough
+    )
+    key_sel = jax.random.fold_in(key, 1)
+    t_total = recs["start"].shape[0]
+    labels, eligible = compute_labels(recs["start"], recs["violation"], lookahead)
+    n_elig = int(jnp.sum(eligible))
+    n_pos_elig = int(jnp.sum(labels & eligible))
+    meta = {
+        "env_id": name,
+        "split": split,
+        "window": window,
+        "lookahead": lookahead,
+        "view_size": int(recs["image"].shape[2]),
+        "balanced": bool(balance),
+        "num_envs": num_envs,
+        "steps_per_env": int(steps),
+        "num_episodes_started": int(jnp.sum(recs["start"])),
+        "num_violations": int(jnp.sum(recs["violation"])),
+        "eligible_windows": n_elig,
+        "natural_positive_rate": n_pos_elig / max(n_elig, 1),
+    }
+
+    if balance:
+        slot, _, counts = _select_balanced(
+            recs["start"],
+            recs["violation"],
+            key_sel,
+            num_samples=num_samples,
+            lookahead=lookahead,
+        )
+        count = int(counts["num_positive"]) + int(counts["num_negative"])
+    else:
+        keep = t_total - lookahead
+        t_idx = jnp.arange(t_total)[:, None]
+        e_idx = jnp.arange(num_envs)[None, :]
+        slot = jnp.where(t_idx < keep, e_idx * keep + t_idx, num_envs * keep).astype(jnp.int32)
+        count = num_envs * keep
+    num_slots = num_samples if balance else count
+    windows = _gather_windows(
+        recs["image"], recs["start"], slot, num_slots=num_slots, window=window
+    )
+    # Which stream position went to each slot.
+    flat = slot.reshape(-1)
+    pos_of_slot = (
+        jnp.full((num_slots,), -1, jnp.int32)
+        .at[flat]
+        .set(jnp.arange(flat.size, dtype=jnp.int32), mode="drop")
+    )
+    pos_of_slot = np.asarray(pos_of_slot[:count])
+    t_sel, e_sel = pos_of_slot // num_envs, pos_of_slot % num_envs
+    host = jax.device_get({k: v for k, v in recs.items() if k != "image"})
+    labels_np = np.asarray(labels)
+    windows = np.asarray(windows[:count])
+    arrays = {
+        "windows": windows,
+        "tokens": host["tokens"][t_sel, e_sel].astype(np.int32),
+        "labels": labels_np[t_sel, e_sel].astype(np.uint8),
+        "template_id": host["template_id"][t_sel, e_sel].astype(np.int32),
+        "constraint_type": host["constraint_type"][t_sel, e_sel].astype(np.int32),
+        "scenario": np.full((count,), name),
+    }
+    extras = {}
+    if balance:
+        perm = np.random.default_rng(np.asarray(jax.random.key_data(key_sel)).ravel()).permutation(
+            count
+        )
+        arrays = {k: v[perm] for k, v in arrays.items()}
+    else:
+        keep = t_total - lookahead
+        extras = _episode_fields(host["start"], host["violation"], t_sel, e_sel, keep)
+    ds = CheckerDataset(**arrays, extras=extras, meta=meta)
+    ds.meta.update(
+        num_samples=len(ds),
+        num_positive=int(np.sum(ds.labels)),
+        positive_fraction=ds.positive_fraction,
+    )
+    return ds
+
+
+def _episode_fields(start, violation, t_sel, e_sel, keep) -> dict:
+    start = np.asarray(start, bool)
+    violation = np.asarray(violation, bool)
+    t_total, num_envs = start.shape
+    count = np.cumsum(start, axis=0)  # episodes started so far, per env (>= 1)
+    episode = np.arange(num_envs)[None, :] * (t_total + 1) + count
+    # Step index within the episode: positions since the last start.
+    pos = np.arange(t_total)[:, None]
+    last_start = np.maximum.accumulate(np.where(start, pos, 0), axis=0)
+    step = pos - last_start
+    nxt = np.concatenate([violation[1:], np.zeros((1, num_envs), bool)])
+    # Complete: the episode's last observation is among the kept positions (< keep), i.e. a
+    # later position <= keep of the same env starts a new episode.
+    start_in = start & (pos <= keep)
+    later_start = np.flip(np.logical_or.accumulate(np.flip(start_in, 0), axis=0), 0)
+    complete = np.concatenate([later_start[1:], np.zeros((1, num_envs), bool)])
+    return {
+        "env_index": e_sel.astype(np.int32),
+        "position": t_sel.astype(np.int32),
+        "episode": episode[t_sel, e_sel].astype(np.int64),
+        "step": step[t_sel, e_sel].astype(np.int32),
+        "step_violation": (violation & ~start)[t_sel, e_sel].astype(np.uint8),
+        "next_violation": nxt[t_sel, e_sel].astype(np.uint8),
+        "complete": complete[t_sel, e_sel],
+    }
+
+
+def collect_episodes(
+    env,
+    policy_fn: Callable,
+    policy_params: Any,
+    key: jax.Array,
+    num_steps: int,
+    window: int = 5,
+    lookahead: int = 1,
+    num_envs: int = 64,
+    *,
+    env_id: str | None = None,
+) -> CheckerDataset:
+    """Every window of ``num_envs`` envs over ``num_steps`` steps (``collect(balance=False)``)."""
+    return collect(
+        env,
+        policy_fn,
+        policy_params,
+        key,
+        None,
+        window,
+        lookahead,
+        num_envs,
+        balance=False,
+        num_steps=num_steps,
+        env_id=env_id,
+    )

@@ -1,0 +1,245 @@
+"""The checker measured as a classifier (DESIGN.md §6): plain numpy, JSON-ready floats.
+
+* :func:`binary_metrics`: accuracy, precision, recall, F1 at a threshold, AUROC, ECE;
+* :func:`auroc`: exact rank statistic (Mann-Whitney U) with average ranks for ties, so a
+  tie between a positive and a negative counts one half;
+* :func:`expected_calibration_error`: 10 equal-width bins of the predicted probability;
+  the weighted mean of ``|mean label - mean probability|`` per bin;
+* :func:`lead_time`: on full episodes (:func:`checker.data.collect_episodes`), the steps
+  between the first alarm and the first violation of each violating episode, and the
+  false-alarm rate on episodes without violation;
+* :func:`per_group`: the same metrics per constraint template (or type);
+* :func:`evaluate`: all of it for a :class:`~checker.TrainedChecker` and a dataset, with
+  jitted batched inference.
+
+Undefined values (AUROC with one class only, precision with no predicted positive, ...) are
+``None`` so the result stays valid JSON.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = [
+    "auroc",
+    "binary_metrics",
+    "evaluate",
+    "expected_calibration_error",
+    "lead_time",
+    "per_group",
+    "predict",
+]
+
+
+def _f(x) -> float | None:
+    """Plain float, or None for NaN/inf/None."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def auroc(labels, scores) -> float | None:
+    """Area under the ROC curve, exact, ties counted one half; None if a class is absent."""
+    y = np.asarray(labels).astype(bool).ravel()
+    s = np.asarray(scores, np.float64).ravel()
+    if y.shape != s.shape:
+        raise ValueError(f"labels {y.shape} and scores {s.shape} differ in shape")
+    n_pos, n_neg = int(y.sum()), int((~y).sum())
+    if n_pos == 0 or n_neg == 0:
+        return None
+    order = np.argsort(s, kind="mergesort")
+    sorted_s = s[order]
+    # Average 1-based ranks over runs of equal scores.
+    boundaries = np.flatnonzero(np.diff(sorted_s)) + 1
+    starts = np.concatenate([[0], boundaries])
+    ends = np.concatenate([boundaries, [len(s)]])
+    avg = (starts + ends + 1) / 2.0  # mean of ranks starts+1 .. ends
+    ranks = np.empty(len(s))
+    ranks[order] = np.repeat(avg, ends - starts)
+    u = ranks[y].sum() - n_pos * (n_pos + 1) / 2.0
+    return float(u / (n_pos * n_neg))
+
+
+def expected_calibration_error(labels, probs, num_bins: int = 10) -> float | None:
+    """ECE over ``num_bins`` equal-width bins of ``probs`` in [0, 1] (p = 1 in the last bin)."""
+    y = np.asarray(labels, np.float64).ravel()
+    p = np.asarray(probs, np.float64).ravel()
+    if len(y) == 0:
+        return None
+    idx = np.clip((p * num_bins).astype(int), 0, num_bins - 1)
+    total = 0.0
+    for b in range(num_bins):
+        m = idx == b
+        if m.any():
+            total += m.mean() * abs(y[m].mean() - p[m].mean())
+    return float(total)
+
+
+def binary_metrics(labels, probs, threshold: float = 0.5) -> dict:
+    """Accuracy, precision, recall, F1 (predicted positive iff ``prob >= threshold``), AUROC,
+    ECE (10 bins), Brier score, counts."""
+    y = np.asarray(labels).astype(bool).ravel()
+    p = np.asarray(probs, np.float64).ravel()
+    pred = p >= threshold
+    tp = int(np.sum(pred & y))
+    fp = int(np.sum(pred & ~y))
+    fn = int(np.sum(~pred & y))
+    tn = int(np.sum(~pred & ~y))
+    n = len(y)
+    precision = tp / (tp + fp) if tp + fp else None
+    recall = tp / (tp + fn) if tp + fn else None
+    if precision is None or recall is None:
+        f1 = None
+    else:
+        f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+    return {
+        "n": n,
+        "positives": int(y.sum()),
+        "positive_rate": _f(y.mean()) if n else None,
+        "threshold": float(threshold),
+        "accuracy": _f((tp + tn) / n) if n else None,
+        "precision": _f(precision),
+        "recall": _f(recall),
+        "f1": _f(f1),
+        "auroc": auroc(y, p),
+        "ece": expected_calibration_error(y, p),
+        "brier": _f(np.mean((p - y) ** 2)) if n else None,
+        "tp": tp,
+        "fp": fp,
+        "fn": fn,
+        "tn": tn,
+    }
+
+
+def per_group(groups, labels, probs, threshold: float = 0.5) -> dict:
+    """``{str(group): binary_metrics}`` for every distinct value of ``groups``."""
+    g = np.asarray(groups).ravel()
+    out = {}
+    for value in np.unique(g):
+        m = g == value
+        r = binary_metrics(np.asarray(labels)[m], np.asarray(probs)[m], threshold)
+        out[str(value.item() if hasattr(value, "item") else value)] = {
+            k: r[k] for k in ("n", "positives", "accuracy", "precision", "recall", "f1", "auroc")
+        }
+    return out
+
+
+def lead_time(episodes, probs, threshold: float = 0.5) -> dict:
+    """Lead time of alarms on full episodes.
+
+    ``episodes`` is a dataset from :func:`checker.data.collect_episodes` (rows carry
+    ``episode``, ``step``, ``next_violation`` and ``complete``) and ``probs`` the checker's
+    probability for each row. Only complete episodes count. For a violating episode with its
+    first violation on step ``t_v`` (the step that produces ``obs_{t_v}``), the first alarm is
+    the first window ending at ``obs_t``, ``t <= t_v``, with ``prob >= threshold``, and the
+    lead time is ``t_v - t``: 1 means the alarm fired on the observation just before the
+    violating step, 0 after it (possible only if the violation did not end the episode).
+
+    Returns counts, ``detected_before`` (fraction of violating episodes with an alarm at
+    ``t < t_v``), ``detected`` (``t <= t_v``), mean / median / histogram of the lead time over
+    detected episodes, ``false_alarm_rate`` (fraction of complete episodes *without* violation
+    that raise any alarm) and ``false_alarm_window_rate`` (fraction of their windows that
+    alarm).
+    """
+    ex = episodes.extras
+    for name in ("episode", "step", "next_violation", "complete"):
+        if name not in ex:
+            raise ValueError(
+                f"lead_time needs a full-episode dataset (collect_episodes); missing {name!r}"
+            )
+    p = np.asarray(probs, np.float64).ravel()
+    keep = np.asarray(ex["complete"], bool)
+    ep = np.asarray(ex["episode"])[keep]
+    step = np.asarray(ex["step"])[keep]
+    nxt = np.asarray(ex["next_violation"], bool)[keep]
+    alarm = p[keep] >= threshold
+    order = np.lexsort((step, ep))
+    ep, step, nxt, alarm = ep[order], step[order], nxt[order], alarm[order]
+    uniq, first = np.unique(ep, return_index=True)
+    bounds = np.append(first, len(ep))
+    leads, missed, fa_eps, clean_eps, clean_windows, clean_alarms = [], 0, 0, 0, 0, 0
+    for i in range(len(uniq)):
+        s, e = bounds[i], bounds[i + 1]
+        v = np.flatnonzero(nxt[s:e])
+        if len(v):
+            t_v = int(step[s + v[0]]) + 1
+            cand = np.flatnonzero(alarm[s:e] & (step[s:e] <= t_v))
+            if len(cand):
+                leads.append(t_v - int(step[s + cand[0]]))
+            else:
+                missed += 1
+        else:
+            clean_eps += 1
+            clean_windows += e - s
+            clean_alarms += int(alarm[s:e].sum())
+            fa_eps += bool(alarm[s:e].any())
+    n_viol = len(leads) + missed
+    leads_a = np.asarray(leads)
+    hist = {str(k): int(v) for k, v in zip(*np.unique(leads_a, return_counts=True), strict=True)}
+    return {
+        "threshold": float(threshold),
+        "episodes": int(len(uniq)),
+        "violating_episodes": n_viol,
+        "detected": _f(len(leads) / n_viol) if n_viol else None,
+        "detected_before": _f(np.sum(leads_a >= 1) / n_viol) if n_viol else None,
+        "mean_lead_time": _f(leads_a.mean()) if len(leads) else None,
+        "median_lead_time": _f(np.median(leads_a)) if len(leads) else None,
+        "lead_time_histogram": hist,
+        "clean_episodes": clean_eps,
+        "false_alarm_rate": _f(fa_eps / clean_eps) if clean_eps else None,
+        "false_alarm_window_rate": _f(clean_alarms / clean_windows) if clean_windows else None,
+    }
+
+
+@functools.partial(jax.jit, static_argnames=())
+def _logits(trained, windows, tokens):
+    return trained.logits(windows, tokens)
+
+
+def predict(trained, windows, tokens, batch_size: int = 2048) -> np.ndarray:
+    """Probabilities (float64 numpy) of all rows, in fixed-size jitted batches."""
+    windows = np.asarray(windows)
+    tokens = np.asarray(tokens)
+    n = len(windows)
+    out = np.empty((n,), np.float64)
+    bs = max(1, min(batch_size, n))
+    for s in range(0, n, bs):
+        w, t = windows[s : s + bs], tokens[s : s + bs]
+        m = len(w)
+        if m < bs:  # pad so every call has the compiled shape
+            w = np.concatenate([w, np.zeros((bs - m,) + w.shape[1:], w.dtype)])
+            t = np.concatenate([t, np.zeros((bs - m,) + t.shape[1:], t.dtype)])
+        logits = np.asarray(_logits(trained, jnp.asarray(w), jnp.asarray(t)), np.float64)
+        out[s : s + m] = 1.0 / (1.0 + np.exp(-logits[:m]))
+    return out
+
+
+def evaluate(trained, dataset, threshold: float | None = None, batch_size: int = 2048) -> dict:
+    """All metrics of ``trained`` on ``dataset``; plain floats/ints/None, JSON-serialisable.
+
+    Keys: the :func:`binary_metrics` entries, ``per_template``, ``per_constraint_type``,
+    ``dataset`` (a few metadata entries) and, for full-episode datasets, ``lead_time``.
+    ``threshold`` defaults to ``trained.threshold``.
+    """
+    if trained.config.window != dataset.window:
+        raise ValueError(
+            f"checker window {trained.config.window} != dataset window {dataset.window}"
+        )
+    thr = trained.threshold if threshold is None else float(threshold)
+    probs = predict(trained, dataset.windows, dataset.tokens, batch_size)
+    out = binary_metrics(dataset.labels, probs, thr)
+    out["per_template"] = per_group(dataset.template_id, dataset.labels, probs, thr)
+    out["per_constraint_type"] = per_group(dataset.constraint_type, dataset.labels, probs, thr)
+    out["dataset"] = {
+        k: dataset.meta.get(k)
+        for k in ("env_id", "split", "window", "lookahead", "natural_positive_rate", "balanced")
+    }
+    if "episode" in dataset.extras:
+        out["lead_time"] = lead_time(dataset, probs, thr)
+    return out

@@ -1,0 +1,62 @@
+"""The on-device ring buffer of the last ``n`` observations per env, and the checker's output.
+
+The PPO step keeps one buffer for all its environments and, with
+``jaxgrid.wrappers.AutoReset``::
+
+    buf = push(init_buffer(num_envs, window, view), ts0.observation["image"], ones)  # reset
+    ...
+    state, ts = env.step(state, action)                                              # each step
+    buf = push(buf, ts.observation["image"], ts.terminated | ts.truncated)
+    p = violation_prob(checker, buf, ts.observation["constraint"])
+
+After an auto-reset ``ts.observation`` is the new episode's first observation, so passing
+``done`` as ``episode_start`` clears the finished episode's frames: a window never mixes two
+episodes. Cleared frames are zeros, which is MiniGrid's "unseen" cell, the same padding a
+window has at the start of an episode. :func:`checker.data.collect` builds its training
+windows with this very :func:`push`, so the checker is trained on what PPO feeds it.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def init_buffer(num_envs: int, window: int, view_size: int) -> jax.Array:
+    """uint8 zeros ``(num_envs, window, view_size, view_size, 3)``."""
+    for name, value in (("num_envs", num_envs), ("window", window), ("view_size", view_size)):
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise ValueError(f"init_buffer: {name} must be a positive int, got {value!r}")
+    return jnp.zeros((num_envs, window, view_size, view_size, 3), jnp.uint8)
+
+
+def push(buffer: jax.Array, image: jax.Array, episode_start: jax.Array) -> jax.Array:
+    """Append ``image`` as the newest (last) frame, dropping the oldest.
+
+    Args:
+        buffer: uint8 ``(E, n, V, V, 3)``, frames ordered oldest -> newest.
+        image: uint8 ``(E, V, V, 3)``, the observation just received.
+        episode_start: bool ``(E,)``; where set, ``image`` starts an episode and the ``n - 1``
+            older frames are cleared to zeros.
+
+    Returns the new buffer (same shape and dtype). Pure; a concatenate and a select.
+    """
+    older = buffer[:, 1:]
+    start = jnp.asarray(episode_start, bool).reshape((-1,) + (1,) * (older.ndim - 1))
+    older = jnp.where(start, jnp.zeros((), buffer.dtype), older)
+    return jnp.concatenate([older, jnp.asarray(image, buffer.dtype)[:, None]], axis=1)
+
+
+def violation_logit(checker, buffer: jax.Array, tokens: jax.Array) -> jax.Array:
+    """float32 ``(E,)`` logits of ``checker`` (a :class:`~checker.TrainedChecker`)."""
+    return checker.logits(buffer, tokens)
+
+
+def violation_prob(checker, buffer: jax.Array, tokens: jax.Array) -> jax.Array:
+    """float32 ``(E,)`` probability that a violation is about to happen, per env.
+
+    ``checker`` is a :class:`~checker.TrainedChecker`, ``buffer`` the ring buffer of
+    :func:`push`, ``tokens`` int32 ``(E, L)`` (``ts.observation["constraint"]``). Pure and
+    jittable (``checker`` may be a jit argument: only its ``params`` are traced).
+    """
+    return jax.nn.sigmoid(violation_logit(checker, buffer, tokens))

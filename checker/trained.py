@@ -1,0 +1,148 @@
+"""A trained checker as one pytree (:class:`TrainedChecker`), and its save/load to a directory.
+
+A checker directory holds ``params.msgpack`` (the Flax parameters, ``flax.serialization``)
+and ``config.json`` (the :class:`~checker.model.CheckerConfig`, the label ``lookahead``, the
+``env_id`` it was trained on, the decision ``threshold`` and the vocabulary and ``MAX_LEN``
+it was trained with). :func:`load` refuses a directory made for another vocabulary or
+sentence length, since token ids would then mean other words.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import serialization, struct
+
+from checker.model import Checker, CheckerConfig, init_params
+from jaxgrid import language
+
+PARAMS_FILE = "params.msgpack"
+CONFIG_FILE = "config.json"
+FORMAT_VERSION = 1
+
+
+class TrainedChecker(struct.PyTreeNode):
+    """Parameters (the only pytree leaf) + static configuration of a trained checker.
+
+    Every method is a thin wrapper over ``Checker(config).apply(params, ...)``, pure and
+    jittable; a ``TrainedChecker`` can be passed through ``jax.jit`` as an argument.
+    """
+
+    params: Any
+    config: CheckerConfig = struct.field(pytree_node=False)
+    lookahead: int = struct.field(pytree_node=False, default=1)
+    env_id: str = struct.field(pytree_node=False, default="")
+    threshold: float = struct.field(pytree_node=False, default=0.5)
+
+    @property
+    def module(self) -> Checker:
+        return Checker(self.config)
+
+    def logits(self, windows: jax.Array, tokens: jax.Array) -> jax.Array:
+        """uint8 ``(B, n, V, V, 3)``, int32 ``(B, L)`` -> float32 logits ``(B,)``."""
+        return self.module.apply(self.params, windows, tokens)
+
+    def probs(self, windows: jax.Array, tokens: jax.Array) -> jax.Array:
+        """Violation probabilities ``(B,)`` (sigmoid of :meth:`logits`)."""
+        return jax.nn.sigmoid(self.logits(windows, tokens))
+
+    def encode_language(self, tokens: jax.Array) -> jax.Array:
+        return self.module.apply(self.params, tokens, method=Checker.encode_language)
+
+    def embed_states(self, frames: jax.Array) -> jax.Array:
+        return self.module.apply(self.params, frames, method=Checker.embed_states)
+
+    def classify(self, state_emb: jax.Array, lang: jax.Array) -> jax.Array:
+        return self.module.apply(self.params, state_emb, lang, method=Checker.classify)
+
+
+def new_checker(
+    config: CheckerConfig,
+    key: jax.Array,
+    *,
+    lookahead: int = 1,
+    env_id: str = "",
+    threshold: float = 0.5,
+) -> TrainedChecker:
+    """An untrained (freshly initialised) checker."""
+    return TrainedChecker(
+        params=init_params(config, key),
+        config=config,
+        lookahead=int(lookahead),
+        env_id=str(env_id),
+        threshold=float(threshold),
+    )
+
+
+def _vocab_meta() -> dict:
+    return {"vocab": list(language.VOCAB), "max_len": language.MAX_LEN}
+
+
+def check_vocab(meta: dict, where: str) -> None:
+    """Raise ``ValueError`` if ``meta`` (with ``vocab``/``max_len``) is not this vocabulary."""
+    vocab, max_len = meta.get("vocab"), meta.get("max_len")
+    if vocab != list(language.VOCAB) or max_len != language.MAX_LEN:
+        raise ValueError(
+            f"{where} was made for another constraint vocabulary (vocab of "
+            f"{len(vocab) if isinstance(vocab, list) else vocab!r} words, MAX_LEN {max_len}); "
+            f"this jaxgrid.language has {language.vocab_size()} words and MAX_LEN "
+            f"{language.MAX_LEN}, so its token ids would mean other words"
+        )
+
+
+def save(trained: TrainedChecker, directory: str | os.PathLike) -> str:
+    """Write ``params.msgpack`` and ``config.json`` under ``directory`` (created if needed)."""
+    directory = os.fspath(directory)
+    os.makedirs(directory, exist_ok=True)
+    params = jax.device_get(trained.params)
+    with open(os.path.join(directory, PARAMS_FILE), "wb") as f:
+        f.write(serialization.to_bytes(params))
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "config": trained.config.to_dict(),
+        "lookahead": trained.lookahead,
+        "env_id": trained.env_id,
+        "threshold": trained.threshold,
+        **_vocab_meta(),
+    }
+    with open(os.path.join(directory, CONFIG_FILE), "w") as f:
+        json.dump(meta, f, indent=2)
+    return directory
+
+
+def load(directory: str | os.PathLike) -> TrainedChecker:
+    """Restore a :class:`TrainedChecker` written by :func:`save`, ready to use.
+
+    Raises ``FileNotFoundError`` naming the missing path, ``ValueError`` for a checker made for
+    another vocabulary or ``MAX_LEN`` (or an unreadable config).
+    """
+    directory = os.fspath(directory)
+    if not os.path.isdir(directory):
+        raise FileNotFoundError(f"checker directory not found: {directory}")
+    cfg_path = os.path.join(directory, CONFIG_FILE)
+    params_path = os.path.join(directory, PARAMS_FILE)
+    for p in (cfg_path, params_path):
+        if not os.path.isfile(p):
+            raise FileNotFoundError(f"checker file not found: {p}")
+    with open(cfg_path) as f:
+        try:
+            meta = json.load(f)
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{cfg_path} is not valid JSON: {e}") from e
+    check_vocab(meta, f"checker {directory}")
+    config = CheckerConfig.from_dict(meta["config"])
+    template = init_params(config, jax.random.PRNGKey(0))
+    with open(params_path, "rb") as f:
+        params = serialization.from_bytes(template, f.read())
+    params = jax.tree.map(jnp.asarray, params)
+    return TrainedChecker(
+        params=params,
+        config=config,
+        lookahead=int(meta["lookahead"]),
+        env_id=str(meta["env_id"]),
+        threshold=float(meta["threshold"]),
+    )
