@@ -169,9 +169,19 @@ class Checker(nn.Module):
         return self.head(h)[..., 0].astype(jnp.float32)
 
 
-def init_params(config: CheckerConfig, key: jax.Array):
-    """Fresh parameters of ``Checker(config)`` (dummy batch of one)."""
+def _dummy_inputs(config: CheckerConfig):
     v = config.view_size
     windows = jnp.zeros((1, config.window, v, v, 3), jnp.uint8)
     tokens = jnp.zeros((1, config.max_len), jnp.int32)
-    return Checker(config).init(key, windows, tokens)
+    return windows, tokens
+
+
+def init_params(config: CheckerConfig, key: jax.Array):
+    """Fresh parameters of ``Checker(config)`` (dummy batch of one; jitted, since an eager
+    Flax init compiles the GRU's scan op by op)."""
+    return jax.jit(Checker(config).init)(key, *_dummy_inputs(config))
+
+
+def params_shape(config: CheckerConfig):
+    """The parameter pytree of ``Checker(config)`` as ``jax.ShapeDtypeStruct`` leaves."""
+    return jax.eval_shape(Checker(config).init, jax.random.PRNGKey(0), *_dummy_inputs(config))

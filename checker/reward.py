@@ -18,8 +18,14 @@ windows with this very :func:`push`, so the checker is trained on what PPO feeds
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from jaxgrid import language
 
 
 def init_buffer(num_envs: int, window: int, view_size: int) -> jax.Array:
@@ -47,9 +53,51 @@ def push(buffer: jax.Array, image: jax.Array, episode_start: jax.Array) -> jax.A
     return jnp.concatenate([older, jnp.asarray(image, buffer.dtype)[:, None]], axis=1)
 
 
+@functools.cache
+def sentence_table() -> np.ndarray:
+    """int32 ``(K, MAX_LEN)``: the token ids of every sentence of the grammar.
+
+    The grammar is finite (every template with every colour, ``K = 35 * 6 = 210``) and the
+    tokenizer canonical, so any valid constraint's token row is one of these rows.
+    """
+    rows = [
+        language.tokenize(language.render(t.id, c))
+        for t in language.TEMPLATES
+        for c in language.COLOURS
+    ]
+    return np.stack(rows).astype(np.int32)
+
+
+def sentence_codes(checker, tokens: jax.Array) -> jax.Array:
+    """``checker.encode_language(tokens)``, computed cheaply for large batches.
+
+    With more rows than :func:`sentence_table` has, the GRU encodes the table once and each
+    row takes its sentence's code by exact match; if any row matches no sentence of the
+    grammar (only possible for ids that no valid sentence tokenizes to), a ``lax.cond``
+    encodes the whole batch instead. The result equals ``checker.encode_language(tokens)`` up
+    to float rounding either way. (Under ``vmap`` the cond computes both branches.)
+    """
+    tokens = jnp.asarray(tokens, jnp.int32)
+    table = sentence_table()
+    if tokens.ndim != 2 or tokens.shape[0] <= table.shape[0] or tokens.shape[1] != table.shape[1]:
+        return checker.encode_language(tokens)
+    table = jnp.asarray(table)
+    match = jnp.all(tokens[:, None, :] == table[None, :, :], axis=-1)  # (E, K)
+    found = jnp.any(match, axis=-1)
+    index = jnp.argmax(match, axis=-1)
+
+    def by_table(_):
+        return checker.encode_language(table)[index]
+
+    def direct(_):
+        return checker.encode_language(tokens)
+
+    return lax.cond(jnp.all(found), by_table, direct, None)
+
+
 def violation_logit(checker, buffer: jax.Array, tokens: jax.Array) -> jax.Array:
     """float32 ``(E,)`` logits of ``checker`` (a :class:`~checker.TrainedChecker`)."""
-    return checker.logits(buffer, tokens)
+    return checker.classify(checker.embed_states(buffer), sentence_codes(checker, tokens))
 
 
 def violation_prob(checker, buffer: jax.Array, tokens: jax.Array) -> jax.Array:

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from flax import serialization, struct
 
-from checker.model import Checker, CheckerConfig, init_params
+from checker.model import Checker, CheckerConfig, init_params, params_shape
 from jaxgrid import language
 
 PARAMS_FILE = "params.msgpack"
@@ -135,9 +135,14 @@ def load(directory: str | os.PathLike) -> TrainedChecker:
             raise ValueError(f"{cfg_path} is not valid JSON: {e}") from e
     check_vocab(meta, f"checker {directory}")
     config = CheckerConfig.from_dict(meta["config"])
-    template = init_params(config, jax.random.PRNGKey(0))
     with open(params_path, "rb") as f:
-        params = serialization.from_bytes(template, f.read())
+        state = serialization.msgpack_restore(f.read())
+    template = params_shape(config)
+    params = serialization.from_state_dict(template, state)
+    want = jax.tree.map(lambda s: (s.shape, s.dtype), template)
+    got = jax.tree.map(lambda a: (a.shape, a.dtype), params)
+    if jax.tree.structure(want) != jax.tree.structure(got) or want != got:
+        raise ValueError(f"{params_path} does not hold parameters of the checker in {cfg_path}")
     params = jax.tree.map(jnp.asarray, params)
     return TrainedChecker(
         params=params,
