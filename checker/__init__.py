@@ -9,19 +9,40 @@ constraint's sentence, mean a violation is about to happen?
 * :mod:`checker.data`: auto-labelled datasets collected on device (:func:`collect`);
 * :mod:`checker.policies`: behaviour policies for collection;
 * :mod:`checker.train`: :func:`train_checker` and the ``python -m checker.train`` CLI;
-* :mod:`checker.metrics`: classification metrics, lead time, :func:`evaluate`.
+* :mod:`checker.metrics`: classification metrics, lead time, :func:`evaluate`;
+* :mod:`checker.bench`: the checker's cost per env step (``python -m checker.bench``).
 
 ``checker`` imports ``jaxgrid`` only (never ``agents`` or ``experiments``).
 """
 
 from checker.data import CheckerDataset, collect, collect_episodes
+from checker.metrics import (
+    auroc,
+    binary_metrics,
+    colour_counterfactual,
+    evaluate,
+    expected_calibration_error,
+    lead_time,
+    per_group,
+    predict,
+)
 from checker.model import Checker, CheckerConfig
 from checker.policies import NoisyOracleParams, noisy_oracle_policy, random_policy
 from checker.reward import init_buffer, push, violation_prob
+from checker.train import train_checker
 from checker.trained import TrainedChecker, load, save
 
 __all__ = [
     "Checker",
+    "auroc",
+    "binary_metrics",
+    "colour_counterfactual",
+    "evaluate",
+    "expected_calibration_error",
+    "lead_time",
+    "per_group",
+    "predict",
+    "train_checker",
     "CheckerConfig",
     "CheckerDataset",
     "NoisyOracleParams",

@@ -9,6 +9,9 @@
   between the first alarm and the first violation of each violating episode, and the
   false-alarm rate on episodes without violation;
 * :func:`per_group`: the same metrics per constraint template (or type);
+* :func:`colour_counterfactual`: does the checker read the sentence? Each door-only positive
+  is paired with the same window under a sentence naming another door colour, a true
+  negative by the monitor's definition;
 * :func:`evaluate`: all of it for a :class:`~checker.TrainedChecker` and a dataset, with
   jitted batched inference.
 
@@ -33,6 +36,7 @@ __all__ = [
     "lead_time",
     "per_group",
     "predict",
+    "colour_counterfactual",
 ]
 
 
@@ -220,11 +224,52 @@ def predict(trained, windows, tokens, batch_size: int = 2048) -> np.ndarray:
     return out
 
 
+def colour_counterfactual(trained, dataset, threshold: float | None = None, seed: int = 0):
+    """The checker on door-only positives vs. the same windows with the colour word changed.
+
+    For a positive row whose template forbids a door only (no lava clause), the violation is
+    entering a door of the named colour; under the same sentence naming another of the five
+    door colours, that step is no violation, so the recoloured row is a true negative.
+    Returns ``n`` (positives used), ``auroc`` (positives vs. their counterfactuals),
+    ``flip_rate`` (fraction of detected positives that fall below the threshold once
+    recoloured), and the mean probabilities of both; ``None`` entries if there is no such row.
+    """
+    from jaxgrid import language
+
+    thr = trained.threshold if threshold is None else float(threshold)
+    lava_free = np.array([not t.has_lava for t in language.TEMPLATES])
+    tid = np.asarray(dataset.template_id)
+    rows = np.flatnonzero((np.asarray(dataset.labels) > 0) & lava_free[np.clip(tid, 0, None)])
+    if len(rows) == 0:
+        return {"n": 0, "auroc": None, "flip_rate": None, "mean_prob": None,
+                "mean_prob_counterfactual": None}  # fmt: skip
+    tokens = np.array(dataset.tokens[rows])
+    colour_ids = np.array([language.VOCAB.index(c) for c in language.DOOR_COLOURS])
+    rng = np.random.default_rng(seed)
+    is_colour = np.isin(tokens, np.array([language.VOCAB.index(c) for c in language.COLOURS]))
+    for r in range(len(rows)):
+        j = np.flatnonzero(is_colour[r])[0]  # door-only sentences name exactly one colour
+        tokens[r, j] = rng.choice(colour_ids[colour_ids != tokens[r, j]])
+    windows = dataset.windows[rows]
+    p_true = predict(trained, windows, dataset.tokens[rows])
+    p_cf = predict(trained, windows, tokens)
+    detected = p_true >= thr
+    labels = np.concatenate([np.ones(len(rows)), np.zeros(len(rows))])
+    return {
+        "n": int(len(rows)),
+        "auroc": auroc(labels, np.concatenate([p_true, p_cf])),
+        "flip_rate": _f(np.mean(p_cf[detected] < thr)) if detected.any() else None,
+        "mean_prob": _f(p_true.mean()),
+        "mean_prob_counterfactual": _f(p_cf.mean()),
+    }
+
+
 def evaluate(trained, dataset, threshold: float | None = None, batch_size: int = 2048) -> dict:
     """All metrics of ``trained`` on ``dataset``; plain floats/ints/None, JSON-serialisable.
 
     Keys: the :func:`binary_metrics` entries, ``per_template``, ``per_constraint_type``,
-    ``dataset`` (a few metadata entries) and, for full-episode datasets, ``lead_time``.
+    ``colour_counterfactual``, ``dataset`` (a few metadata entries) and, for full-episode
+    datasets, ``lead_time``.
     ``threshold`` defaults to ``trained.threshold``.
     """
     if trained.config.window != dataset.window:
@@ -236,6 +281,7 @@ def evaluate(trained, dataset, threshold: float | None = None, batch_size: int =
     out = binary_metrics(dataset.labels, probs, thr)
     out["per_template"] = per_group(dataset.template_id, dataset.labels, probs, thr)
     out["per_constraint_type"] = per_group(dataset.constraint_type, dataset.labels, probs, thr)
+    out["colour_counterfactual"] = colour_counterfactual(trained, dataset, thr)
     out["dataset"] = {
         k: dataset.meta.get(k)
         for k in ("env_id", "split", "window", "lookahead", "natural_positive_rate", "balanced")

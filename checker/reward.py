@@ -23,7 +23,6 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 
 from jaxgrid import language
 
@@ -71,11 +70,13 @@ def sentence_table() -> np.ndarray:
 def sentence_codes(checker, tokens: jax.Array) -> jax.Array:
     """``checker.encode_language(tokens)``, computed cheaply for large batches.
 
-    With more rows than :func:`sentence_table` has, the GRU encodes the table once and each
-    row takes its sentence's code by exact match; if any row matches no sentence of the
-    grammar (only possible for ids that no valid sentence tokenizes to), a ``lax.cond``
-    encodes the whole batch instead. The result equals ``checker.encode_language(tokens)`` up
-    to float rounding either way. (Under ``vmap`` the cond computes both branches.)
+    With more rows than :func:`sentence_table` has (210), the GRU encodes the table and each
+    row takes its sentence's code by exact match of its token ids. The table's encoding
+    depends on the parameters only, so inside a PPO ``lax.scan`` XLA hoists it out of the
+    loop: measured at 256 envs on CPU, 0.3 ms per step instead of 6.6 ms for a ``lax.cond``
+    fallback that blocks the hoisting. A row that matches no sentence of the grammar (its ids
+    are no valid constraint; the tokenizer never produces one) gets NaN codes, hence a NaN
+    probability, rather than a silently wrong one. Smaller batches are encoded directly.
     """
     tokens = jnp.asarray(tokens, jnp.int32)
     table = sentence_table()
@@ -83,16 +84,8 @@ def sentence_codes(checker, tokens: jax.Array) -> jax.Array:
         return checker.encode_language(tokens)
     table = jnp.asarray(table)
     match = jnp.all(tokens[:, None, :] == table[None, :, :], axis=-1)  # (E, K)
-    found = jnp.any(match, axis=-1)
-    index = jnp.argmax(match, axis=-1)
-
-    def by_table(_):
-        return checker.encode_language(table)[index]
-
-    def direct(_):
-        return checker.encode_language(tokens)
-
-    return lax.cond(jnp.all(found), by_table, direct, None)
+    codes = checker.encode_language(table)[jnp.argmax(match, axis=-1)]
+    return jnp.where(jnp.any(match, axis=-1)[:, None], codes, jnp.nan)
 
 
 def violation_logit(checker, buffer: jax.Array, tokens: jax.Array) -> jax.Array:
@@ -105,6 +98,8 @@ def violation_prob(checker, buffer: jax.Array, tokens: jax.Array) -> jax.Array:
 
     ``checker`` is a :class:`~checker.TrainedChecker`, ``buffer`` the ring buffer of
     :func:`push`, ``tokens`` int32 ``(E, L)`` (``ts.observation["constraint"]``). Pure and
-    jittable (``checker`` may be a jit argument: only its ``params`` are traced).
+    jittable (``checker`` may be a jit argument: only its ``params`` are traced). For more
+    than 210 envs the sentence codes come from a table of every grammatical sentence (see
+    :func:`sentence_codes`): token rows that are no valid constraint give NaN.
     """
     return jax.nn.sigmoid(violation_logit(checker, buffer, tokens))

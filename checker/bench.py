@@ -1,0 +1,111 @@
+"""Cost of the checker per env step, as the PPO step pays it: ``python -m checker.bench``.
+
+Times a jitted ``lax.scan`` of ``--steps`` steps of ``AutoReset(env)`` under ``vmap`` with
+random actions, with and without the checker's per-step work (``push`` + ``violation_prob``),
+for each ``--envs`` count; compile time is excluded (one warm-up call), ``block_until_ready``
+closes each timing and the best of ``--repeats`` is reported. Parameters are fresh (the cost
+does not depend on their values) unless ``--checker DIR`` is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import time
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from checker.model import CheckerConfig
+from checker.reward import init_buffer, push, violation_prob
+from checker.trained import load, new_checker
+from jaxgrid.wrappers import AutoReset
+
+
+@functools.partial(jax.jit, static_argnames=("num_envs", "steps", "use_checker"))
+def _run(env, trained, key, *, num_envs, steps, use_checker):
+    states, ts = jax.vmap(env.reset)(jax.random.split(key, num_envs))
+    buf = push(
+        init_buffer(num_envs, trained.config.window, env.view_size),
+        ts.observation["image"],
+        jnp.ones((num_envs,), bool),
+    )
+
+    def body(carry, k):
+        states, buf, acc = carry
+        actions = jax.random.randint(k, (num_envs,), 0, env.num_actions)
+        states, ts = jax.vmap(env.step)(states, actions)
+        if use_checker:
+            buf = push(buf, ts.observation["image"], ts.terminated | ts.truncated)
+            acc = acc + violation_prob(trained, buf, ts.observation["constraint"])
+        else:
+            acc = acc + ts.reward
+        return (states, buf, acc), None
+
+    carry = (states, buf, jnp.zeros((num_envs,), jnp.float32))
+    (_, _, acc), _ = lax.scan(body, carry, jax.random.split(key, steps))
+    return acc
+
+
+def measure(env, trained, num_envs: int, steps: int, repeats: int = 3) -> dict:
+    """Seconds per scan of ``steps`` steps with and without the checker, and derived costs."""
+    env = env if isinstance(env, AutoReset) else AutoReset(env)
+    out = {"num_envs": num_envs, "steps": steps}
+    for name, use in (("env_only", False), ("env_plus_checker", True)):
+        run = functools.partial(_run, num_envs=num_envs, steps=steps, use_checker=use)
+        t0 = time.perf_counter()
+        run(env, trained, jax.random.PRNGKey(0)).block_until_ready()
+        out[f"{name}_compile_s"] = time.perf_counter() - t0
+        best = float("inf")
+        for r in range(repeats):
+            t0 = time.perf_counter()
+            run(env, trained, jax.random.PRNGKey(r + 1)).block_until_ready()
+            best = min(best, time.perf_counter() - t0)
+        out[f"{name}_s"] = best
+    n = num_envs * steps
+    out["env_us_per_env_step"] = out["env_only_s"] / n * 1e6
+    out["checker_us_per_env_step"] = (out["env_plus_checker_s"] - out["env_only_s"]) / n * 1e6
+    out["slowdown"] = out["env_plus_checker_s"] / out["env_only_s"]
+    return out
+
+
+def main(argv=None) -> list[dict]:
+    import jaxgrid
+
+    p = argparse.ArgumentParser(prog="python -m checker.bench", description=__doc__)
+    p.add_argument("--env", default="TwoRooms-v0")
+    p.add_argument("--envs", type=int, nargs="+", default=[256, 1024, 4096])
+    p.add_argument("--steps", type=int, default=64)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--checker", default=None, help="a checker directory (default: fresh)")
+    args = p.parse_args(argv)
+    if min(args.envs) < 1:
+        p.error("--envs: every count must be >= 1")
+    if args.steps < 1:
+        p.error("--steps: must be >= 1")
+    if args.repeats < 1:
+        p.error("--repeats: must be >= 1")
+    env = jaxgrid.make(args.env)
+    trained = (
+        load(args.checker)
+        if args.checker
+        else new_checker(CheckerConfig(view_size=env.view_size), jax.random.PRNGKey(0))
+    )
+    rows = []
+    print(f"{args.env}, {jax.devices()[0]}, {args.steps} steps per scan, best of {args.repeats}")
+    print(f"{'envs':>6} {'env us/step':>11} {'checker us/step':>16} {'slowdown':>9}")
+    for n in args.envs:
+        r = measure(env, trained, n, args.steps, args.repeats)
+        rows.append(r)
+        print(
+            f"{n:>6} {r['env_us_per_env_step']:>11.2f} {r['checker_us_per_env_step']:>16.2f} "
+            f"{r['slowdown']:>8.2f}x"
+        )
+    print(json.dumps(rows))
+    return rows
+
+
+if __name__ == "__main__":
+    main()
