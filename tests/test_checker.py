@@ -482,3 +482,23 @@ def test_colour_counterfactual_on_toy(toy, trained_toy):
     cf = checker.colour_counterfactual(trained_toy[0], test)
     assert cf["n"] == int(test.labels.sum())
     assert cf["auroc"] > 0.9 and cf["mean_prob"] > cf["mean_prob_counterfactual"]
+
+
+@pytest.mark.slow
+def test_cli_end_to_end_small(tmp_path):
+    """``python -m checker.train`` on a small budget writes a loadable checker + metrics."""
+    from checker.train import main
+
+    out = tmp_path / "ck"
+    report = main([
+        "--env", "TwoRooms-v0", "--out", str(out), "--samples", "400", "--epochs", "2",
+        "--num-envs", "32", "--heldout-samples", "100", "--transfer-samples", "100",
+        "--episode-envs", "4", "--episode-steps", "32", "--no-progress",
+    ])  # fmt: skip
+    back = checker.load(out)
+    assert back.env_id == "TwoRooms-v0" and back.lookahead == 1
+    saved = json.loads((out / "metrics.json").read_text())
+    assert set(saved["metrics"]) == {
+        "test", "heldout_language", "full_episodes", "transfer_ThreeRoomsKey-v0",
+    }  # fmt: skip
+    assert saved["timing_s"]["collect_plus_train"] > 0 and report["samples"] == 400
