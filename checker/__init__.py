@@ -29,7 +29,6 @@ from checker.metrics import (
 from checker.model import Checker, CheckerConfig
 from checker.policies import NoisyOracleParams, noisy_oracle_policy, random_policy
 from checker.reward import init_buffer, push, violation_prob
-from checker.train import train_checker
 from checker.trained import TrainedChecker, load, save
 
 __all__ = [
@@ -57,3 +56,13 @@ __all__ = [
     "save",
     "violation_prob",
 ]
+
+
+def __getattr__(name):
+    # Lazy, so that ``python -m checker.train`` does not find checker.train already imported
+    # (runpy's RuntimeWarning) when the package is loaded first.
+    if name == "train_checker":
+        from checker.train import train_checker
+
+        return train_checker
+    raise AttributeError(f"module 'checker' has no attribute {name!r}")
