@@ -1,0 +1,326 @@
+"""The phases of :mod:`experiments.pipeline`, each resumable from its artefact in ``--out``.
+
+Kept apart from the pipeline so that :func:`experiments.pipeline.run_experiment` reads as the
+list of phases. Every phase returns what the next needs and, when its artefact already exists,
+loads it instead of recomputing it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+import checker as chk
+import jaxgrid
+from agents.ppo import PPOConfig, make_learner
+from agents.runner import run as run_ppo
+
+# Checker metrics copied into results.json (all rates).
+CHECKER_KEYS = ("accuracy", "precision", "recall", "f1", "auroc", "ece")
+HELDOUT_FRACTION = 4  # held-out / transfer sets are checker_samples // 4 windows
+
+
+def _json(path: Path, obj=None):
+    """Read ``path`` (``obj`` None) or write ``obj`` there atomically."""
+    if obj is None:
+        return json.loads(path.read_text())
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2, default=_plain) + "\n")
+    os.replace(tmp, path)
+    return obj
+
+
+def _plain(x):
+    if isinstance(x, np.generic | np.ndarray | jax.Array):
+        return np.asarray(x).tolist()
+    raise TypeError(f"not JSON-serialisable: {type(x).__name__}")
+
+
+def _config_dict(cfg) -> dict:
+    d = dataclasses.asdict(cfg)
+    d["modes"] = list(cfg.modes)
+    return d
+
+
+# ----------------------------------------------------------------------------------------
+def prepare_out(cfg) -> Path:
+    """Create ``cfg.out``, prove it writable and record the configuration.
+
+    A directory that already holds ``config.json`` of another configuration is refused
+    (mixing two runs' artefacts would be silently wrong); the same configuration resumes.
+    """
+    out = Path(cfg.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write-test"
+        probe.write_text("ok")
+        probe.unlink()
+    except OSError as e:
+        raise ValueError(f"--out {cfg.out}: not writable ({e.strerror or e})") from None
+    mine = {k: v for k, v in _config_dict(cfg).items() if k not in ("progress", "out")}
+    path = out / "config.json"
+    if path.exists():
+        theirs = {k: v for k, v in _json(path).items() if k not in ("progress", "out")}
+        diff = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
+        if diff:
+            raise ValueError(
+                f"--out {cfg.out} holds a run with another configuration (differs in "
+                f"{', '.join(diff)}); pick a new --out or the same flags to resume it"
+            )
+    _json(path, _config_dict(cfg))
+    return out
+
+
+def ppo_config(cfg, mode: str, *, env_id: str | None = None, steps: int | None = None):
+    """The :class:`PPOConfig` of one mode (also validates the sizes, before any compile)."""
+    steps = cfg.steps if steps is None else steps
+    batch = cfg.num_envs * cfg.num_steps
+    updates = max(1, steps // batch)
+    try:
+        return PPOConfig(
+            env_id=env_id or cfg.env_id, reward_mode=mode, total_timesteps=max(steps, batch),
+            num_envs=cfg.num_envs, num_steps=cfg.num_steps,
+            num_minibatches=cfg.num_minibatches, update_epochs=cfg.update_epochs,
+            penalty=cfg.penalty, eval_every=max(1, updates // cfg.curve_points),
+            eval_episodes=cfg.eval_episodes, seed=cfg.seed,
+        )  # fmt: skip
+    except ValueError as e:
+        raise ValueError(f"PPO settings of mode {mode!r}: {e}") from None
+
+
+# ----------------------------------------------------------------------------------------
+# a. behaviour agent
+# ----------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class AgentPolicy:
+    """A trained agent as a :func:`checker.collect` policy (hashable: a static argument)."""
+
+    config: PPOConfig
+
+    def __call__(self, params, obs, state, key):
+        del state
+        return make_learner(self.config).act(params, obs, key)
+
+
+def behaviour_agent(cfg, out: Path):
+    """PPO in ``none`` mode on the checker's scenario for ``behaviour_steps`` (resumable)."""
+    config = ppo_config(cfg, "none", env_id=cfg.checker_env_id, steps=cfg.behaviour_steps)
+    result = run_ppo(config, seeds=(cfg.seed,), out_dir=out / "behaviour",
+                     progress=cfg.progress, desc="a. behaviour agent")  # fmt: skip
+    params = jax.tree.map(lambda x: x[0], result["params"])
+    ev = {k: float(v[0, -1]) for k, v in result["eval"].items()}
+    print(f"a. behaviour agent ({config.total_timesteps} steps): success "
+          f"{ev['success_rate']:.2f}, violations {ev['violation_rate']:.2f}")  # fmt: skip
+    return AgentPolicy(config), params
+
+
+# ----------------------------------------------------------------------------------------
+# b. checker data, c. checker
+# ----------------------------------------------------------------------------------------
+def _collect(cfg, env_id: str, behaviour, key, samples: int, split: str = "train"):
+    policy, params = behaviour
+    if env_id != policy.config.env_id:  # another scenario: the agent was not trained there
+        policy, params = chk.noisy_oracle_policy, chk.NoisyOracleParams(salt=cfg.seed)
+    return chk.collect(jaxgrid.make(env_id, split=split), policy, params, key, samples,
+                       cfg.window, cfg.lookahead, env_id=env_id)  # fmt: skip
+
+
+def checker_data(cfg, out: Path, behaviour):
+    """Balanced, auto-labelled windows of the behaviour agent's rollouts (resumable)."""
+    path = out / "checker_data"
+    if path.with_suffix(".npz").exists() and path.with_suffix(".json").exists():
+        return chk.CheckerDataset.load(path)
+    key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 1)
+    data = _collect(cfg, cfg.checker_env_id, behaviour, key, cfg.checker_samples)
+    data.save(path)
+    print(f"b. checker data: {len(data)} windows, natural positive rate "
+          f"{data.meta['natural_positive_rate']:.4f}")  # fmt: skip
+    return data
+
+
+def _rates(metrics: dict) -> dict:
+    """The six metrics of results.json; undefined ones (no predicted positives, one class)
+    become 0 for precision/F1 (the usual zero-division convention) and 0.5 for AUROC."""
+    fill = {"auroc": 0.5}
+    return {k: float(metrics[k]) if metrics[k] is not None else fill.get(k, 0.0)
+            for k in CHECKER_KEYS}  # fmt: skip
+
+
+def train_checker(cfg, out: Path, data, behaviour):
+    """Train the checker, then measure it on test, held-out language and transfer sets."""
+    ckpt, report_path = out / "checker", out / "checker.json"
+    if (ckpt / "config.json").exists() and report_path.exists():
+        return chk.load(ckpt), _json(report_path)
+    trainval, test = data.split((0.85, 0.15), seed=cfg.seed)
+    trained, history = chk.train_checker(
+        trainval, chk.CheckerConfig(window=cfg.window, view_size=data.windows.shape[2]),
+        seed=cfg.seed, epochs=cfg.checker_epochs, val_fraction=0.15 / 0.85,
+        progress=cfg.progress,
+    )  # fmt: skip
+    trained = dataclasses.replace(trained, env_id=cfg.checker_env_id)
+    chk.save(trained, ckpt)
+    key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 2)
+    small = max(64, cfg.checker_samples // HELDOUT_FRACTION)
+    held = _collect(cfg, cfg.checker_env_id, behaviour, key, small, split="heldout")
+    details = {"test": chk.evaluate(trained, test), "heldout": chk.evaluate(trained, held)}
+    report = _checker_report(details, history)
+    report["transfer"] = _transfer(cfg, trained, report)
+    _json(report_path, report)
+    _json(ckpt / "report.json", report)  # travels with the checker for --checker reuse
+    print(f"c. checker: test AUROC {report['test']['auroc']:.3f} F1 {report['test']['f1']:.3f}"
+          f", held-out AUROC {report['heldout']['auroc']:.3f}")  # fmt: skip
+    return trained, report
+
+
+def _checker_report(details: dict, history: dict | None) -> dict:
+    report = {split: _rates(m) for split, m in details.items()}
+    report["details"] = details
+    if history is not None:
+        report["training"] = {k: history.get(k) for k in ("epochs_run", "best_epoch",
+                                                          "best_val_loss")}  # fmt: skip
+    return report
+
+
+def _transfer(cfg, trained, report: dict) -> dict | None:
+    """The checker on the experiment's own scenario when it was trained on another one."""
+    if cfg.env_id == trained.env_id or not trained.env_id:
+        return report.get("transfer")
+    key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 3)
+    small = max(64, cfg.checker_samples // HELDOUT_FRACTION)
+    # The behaviour agent knows another scenario: the noisy oracle plays this one.
+    data = chk.collect(jaxgrid.make(cfg.env_id), chk.noisy_oracle_policy,
+                       chk.NoisyOracleParams(salt=cfg.seed), key, small, cfg.window,
+                       cfg.lookahead, env_id=cfg.env_id)  # fmt: skip
+    metrics = chk.evaluate(trained, data)
+    report.setdefault("details", {})[f"transfer_{cfg.env_id}"] = metrics
+    print(f"c. checker ({trained.env_id}) on {cfg.env_id}: AUROC {metrics['auroc']}")
+    return _rates(metrics)
+
+
+def reuse_checker(cfg):
+    """``--checker DIR``: load it and its report (``report.json`` of a pipeline run, or
+    ``metrics.json`` of ``python -m checker.train``)."""
+    path = Path(cfg.checker)
+    trained = chk.load(path)
+    if trained.config.window != cfg.window:
+        raise ValueError(f"--checker {path}: window {trained.config.window} != --window "
+                         f"{cfg.window}")  # fmt: skip
+    if (path / "report.json").exists():
+        report = _json(path / "report.json")
+    elif (path / "metrics.json").exists():
+        m = _json(path / "metrics.json")["metrics"]
+        details = {"test": m["test"]}
+        if m.get("heldout_language"):
+            details["heldout"] = m["heldout_language"]
+        report = _checker_report(details, None)
+        report.setdefault("heldout", None)
+    else:
+        raise ValueError(f"--checker {path}: neither report.json nor metrics.json found, so "
+                         "its test metrics are unknown")  # fmt: skip
+    report = dict(report, transfer=_transfer(cfg, trained, dict(report)))
+    _json(Path(cfg.out) / "checker.json", dict(report, reused_from=str(path)))
+    return trained, report
+
+
+# ----------------------------------------------------------------------------------------
+# d, e. PPO in every mode
+# ----------------------------------------------------------------------------------------
+def train_agents(cfg, out: Path, mode: str, trained) -> dict:
+    """``cfg.seeds`` agents of one reward mode, vmapped, checkpointed, finally evaluated."""
+    config = ppo_config(cfg, mode)
+    seeds = tuple(range(cfg.seed, cfg.seed + cfg.seeds))
+    checker = trained if config.uses_checker else None
+    result = run_ppo(config, checker, seeds=seeds, out_dir=out / "modes" / mode,
+                     final_episodes=cfg.final_episodes, progress=cfg.progress,
+                     desc=f"d. {mode}")  # fmt: skip
+    result["config"] = config
+    return result
+
+
+def write_gif(cfg, out: Path, runs: dict, trained) -> Path | None:
+    """A few evaluation episodes of the first seed's agent (checker mode when trained)."""
+    if not cfg.gif_episodes:
+        return None
+    from jaxgrid.video import record_episodes
+
+    mode = "checker" if "checker" in runs else next(iter(runs))
+    learner = make_learner(runs[mode]["config"], trained if mode in ("checker", "lagrangian")
+                           else None)  # fmt: skip
+    params = jax.tree.map(lambda x: x[0], runs[mode]["params"])
+    act = jax.jit(lambda obs, key: learner.act(params, jax.tree.map(lambda x: x[None], obs),
+                                               key)[0])  # fmt: skip
+    path = out / "episodes.gif"
+    record_episodes(learner.env, lambda obs, state, key: act(obs, key),
+                    jax.random.PRNGKey(cfg.seed + 7), cfg.gif_episodes, path)  # fmt: skip
+    return path
+
+
+# ----------------------------------------------------------------------------------------
+# f. results
+# ----------------------------------------------------------------------------------------
+def _method(result: dict, final_episodes: int) -> dict:
+    steps, ev, final = result["steps"], result["eval"], result["final"]
+    curve = [
+        {"step": int(s), **{k: float(np.mean(ev[k][:, i])) for k in ev}}
+        for i, s in enumerate(steps)
+    ]
+    keys = ("violation_rate", "mean_reward", "success_rate")
+    seeds = len(result["seeds"])
+    return {
+        "final": {**{k: float(np.mean(final[k])) for k in keys},
+                  "episodes": int(final_episodes * seeds)},
+        "training_violations": int(np.rint(np.mean(result["train_violations"]))),
+        "training_violations_per_seed": [int(v) for v in result["train_violations"]],
+        "training_alarms_per_seed": [int(v) for v in result["train_alarms"]],
+        "curve": curve,
+        "seeds": seeds,
+        "final_per_seed": {k: [float(v) for v in final[k]] for k in keys},
+        "curve_per_seed": {"step": [int(s) for s in steps],
+                           **{k: np.asarray(ev[k]).tolist() for k in keys}},
+        "wall_s": float(result["wall_s"]),
+    }  # fmt: skip
+
+
+def assemble(cfg, out: Path, runs: dict, checker_report: dict, total_s: float) -> dict:
+    """The ``results.json`` object (schema: :data:`experiments.report.RESULTS_SCHEMA`)."""
+    return {
+        "experiment": cfg.experiment,
+        "config": _config_dict(cfg),
+        "checker": {
+            "test": checker_report["test"],
+            "heldout": checker_report.get("heldout"),
+            "transfer": checker_report.get("transfer"),
+            "trained_on": cfg.checker_env_id,
+        },
+        "methods": {mode: _method(r, cfg.final_episodes) for mode, r in runs.items()},
+        "timing": {"total_s": float(total_s),
+                   "modes_s": {m: float(r["wall_s"]) for m, r in runs.items()},
+                   "devices": [str(d) for d in jax.devices()], "cpu_count": os.cpu_count()},
+    }  # fmt: skip
+
+
+def write_outputs(cfg, out: Path, results: dict, runs: dict) -> list[Path]:
+    """results.json/.md, curves.png and metrics.jsonl (every mode's records, tagged)."""
+    from experiments.report import curves_from_results, plot_curves, write_report
+
+    paths = list(write_report(results, out))
+    title = f"{cfg.experiment} ({cfg.env_id}, {cfg.seeds} seeds)"
+    paths.append(plot_curves(curves_from_results(results), out / "curves.png", title))
+    lines = [json.dumps({"mode": mode, **rec}) for mode, r in runs.items()
+             for rec in r["records"]]  # fmt: skip
+    (out / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    paths += [out / "metrics.jsonl", out / "config.json", out / "checker.json"]
+    if (out / "episodes.gif").exists():
+        paths.append(out / "episodes.gif")
+    return [p for p in paths if Path(p).exists()]
+
+
+__all__: list[Any] = ["prepare_out", "ppo_config", "behaviour_agent", "checker_data",
+                      "train_checker", "reuse_checker", "train_agents", "write_gif",
+                      "assemble", "write_outputs"]  # fmt: skip

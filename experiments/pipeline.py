@@ -1,0 +1,230 @@
+"""The paper's experiment, end to end, shared by every scenario module.
+
+``python -m experiments.two_rooms`` (and ``two_rooms_lava``, ``three_rooms_key``) calls
+:func:`main`, which runs these phases; each one leaves its artefact in ``--out`` and is
+skipped when the artefact is already there, so an interrupted run resumes where it stopped:
+
+a. **behaviour** agent: PPO in ``none`` mode for ``behaviour_steps`` on the checker's
+   scenario (the paper's "partially trained agent"), ``DIR/behaviour/``;
+b. **data**: windows of its rollouts with random constraints, labelled by the ground-truth
+   monitor ``lookahead`` steps ahead (1 = just before), ``DIR/checker_data.{npz,json}``;
+c. **checker**: trained and measured (test split, held-out language split, and for a checker
+   of another scenario, transfer), ``DIR/checker/`` and ``DIR/checker.json``;
+d. **PPO** in every reward mode over ``seeds`` seeds at once (vmapped), evaluated on fixed
+   seeds every ``eval_every`` updates, checkpointed, ``DIR/modes/<mode>/``;
+e. **final evaluation** over ``final_episodes`` fixed-seed episodes per seed;
+f. **report**: ``results.json``, ``results.md``, ``curves.png``, ``episodes.gif``,
+   ``metrics.jsonl`` and ``config.json``.
+
+Sizes come in three presets: ``--quick`` (smoke test, minutes), the default (meaningful
+results in at most about 30 minutes on a 2-core CPU) and ``--paper`` (1e7 steps, 5 seeds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from experiments import phases
+
+MODES = ("checker", "shaped", "none", "lagrangian")
+
+
+@dataclasses.dataclass(frozen=True)
+class ExperimentConfig:
+    """One experiment. ``None`` sizes take the preset's value (see :data:`PRESETS`)."""
+
+    experiment: str = "two_rooms"
+    env_id: str = "TwoRooms-v0"
+    checker_env_id: str | None = None  # scenario the checker is trained on (default env_id)
+    out: str | None = None
+    checker: str | None = None  # reuse a trained checker directory (skips phases a-c)
+    modes: tuple[str, ...] = MODES
+    seeds: int | None = None
+    steps: int | None = None
+    behaviour_steps: int | None = None
+    checker_samples: int | None = None
+    checker_epochs: int | None = None
+    window: int = 5
+    lookahead: int = 1
+    num_envs: int | None = None
+    num_steps: int = 64
+    num_minibatches: int = 4
+    update_epochs: int = 4
+    penalty: float = 1.0
+    curve_points: int | None = None
+    eval_episodes: int | None = None
+    final_episodes: int | None = None
+    gif_episodes: int = 4
+    seed: int = 0
+    quick: bool = False
+    paper: bool = False
+    progress: bool = True
+
+    def resolved(self) -> ExperimentConfig:
+        """Fill ``None`` sizes from the preset and validate everything (``ValueError``)."""
+        if self.quick and self.paper:
+            raise ValueError("--quick and --paper exclude each other")
+        preset = PRESETS["quick" if self.quick else "paper" if self.paper else "default"]
+        filled = {k: v for k, v in preset.items() if getattr(self, k) is None}
+        cfg = dataclasses.replace(self, **filled)
+        if cfg.checker_env_id is None:
+            cfg = dataclasses.replace(cfg, checker_env_id=cfg.env_id)
+        cfg.validate()
+        return cfg
+
+    def validate(self) -> None:
+        unknown = [m for m in self.modes if m not in MODES]
+        if unknown or not self.modes:
+            raise ValueError(f"--modes: unknown mode(s) {unknown}; choose from {MODES}")
+        positive = ("seeds", "steps", "behaviour_steps", "checker_samples", "checker_epochs",
+                    "num_envs", "num_steps", "num_minibatches", "update_epochs",
+                    "curve_points", "eval_episodes", "final_episodes")  # fmt: skip
+        for name in positive:
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, "
+                                 f"got {value!r}")  # fmt: skip
+        if self.gif_episodes < 0:
+            raise ValueError(f"--gif-episodes must be >= 0, got {self.gif_episodes}")
+        if self.penalty < 0:
+            raise ValueError(f"--penalty must be >= 0, got {self.penalty}")
+        import jaxgrid
+
+        for name in ("env_id", "checker_env_id"):
+            if getattr(self, name) not in jaxgrid.registered_ids():
+                raise ValueError(f"{name}: unknown environment id {getattr(self, name)!r}")
+        if self.checker is not None and not (Path(self.checker) / "config.json").exists():
+            raise ValueError(f"--checker {self.checker}: no trained checker there "
+                             "(expected config.json and params.msgpack)")  # fmt: skip
+        from checker.data import validate_window
+
+        validate_window(self.window, self.lookahead)
+        phases.ppo_config(self, "none")  # PPOConfig's own checks, before anything compiles
+
+
+PRESETS: dict[str, dict] = {
+    # --quick: the outputs and their schema, in minutes; results mean nothing.
+    "quick": dict(seeds=2, steps=16_384, behaviour_steps=8_192, checker_samples=512,
+                  checker_epochs=3, num_envs=32, curve_points=2, eval_episodes=16,
+                  final_episodes=32),
+    # Default: meaningful results within about 30 minutes on a 2-core CPU.
+    "default": dict(seeds=3, steps=1_500_000, behaviour_steps=300_000, checker_samples=12_000,
+                    checker_epochs=40, num_envs=128, curve_points=15, eval_episodes=50,
+                    final_episodes=500),
+    # --paper: the paper's budget (1e7 steps), 5 seeds, 50 evaluation episodes a checkpoint.
+    "paper": dict(seeds=5, steps=10_000_000, behaviour_steps=1_000_000, checker_samples=12_000,
+                  checker_epochs=60, num_envs=256, curve_points=40, eval_episodes=50,
+                  final_episodes=500),
+}  # fmt: skip
+
+
+def run_experiment(cfg: ExperimentConfig) -> dict:
+    """Run (or resume) every phase of ``cfg`` and write the outputs; returns ``results``."""
+    cfg = cfg.resolved()
+    out = phases.prepare_out(cfg)  # fails here, before any training, if not writable
+    start = time.perf_counter()
+    if cfg.checker is not None:
+        trained, checker_report = phases.reuse_checker(cfg)
+    else:
+        behaviour = phases.behaviour_agent(cfg, out)  # a
+        data = phases.checker_data(cfg, out, behaviour)  # b
+        trained, checker_report = phases.train_checker(cfg, out, data, behaviour)  # c
+    runs = {mode: phases.train_agents(cfg, out, mode, trained) for mode in cfg.modes}  # d, e
+    phases.write_gif(cfg, out, runs, trained)
+    results = phases.assemble(cfg, out, runs, checker_report, time.perf_counter() - start)
+    paths = phases.write_outputs(cfg, out, results, runs)  # f
+    from experiments.report import summarise
+
+    print(summarise(results))
+    print("outputs:\n" + "\n".join(f"  {p}" for p in paths))
+    return results
+
+
+# ----------------------------------------------------------------------------------------
+# Command line
+# ----------------------------------------------------------------------------------------
+def parse_args(argv, defaults: ExperimentConfig) -> ExperimentConfig:
+    """argparse over the dataclass fields: ``--seeds 3 --steps 1e6 --modes checker,none``."""
+    parser = argparse.ArgumentParser(
+        prog=f"python -m experiments.{defaults.experiment}",
+        description=f"{defaults.experiment}: the paper's experiment on {defaults.env_id} "
+        "(behaviour agent, checker data, checker, PPO in every reward mode, report).",
+    )
+    hidden = {"experiment", "env_id", "checker_env_id"}
+    for f in dataclasses.fields(ExperimentConfig):
+        if f.name in hidden:
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        default = getattr(defaults, f.name)
+        if f.type in ("bool", bool):
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=default)
+        elif f.name == "modes":
+            parser.add_argument(flag, type=_modes, default=default,
+                                help=f"comma-separated subset of {','.join(MODES)}")  # fmt: skip
+        else:
+            typ = float if f.type in ("float", float) else int if "int" in str(f.type) else str
+            parser.add_argument(flag, type=_number(typ), default=default)
+    ns = parser.parse_args(argv)
+    cfg = dataclasses.replace(defaults, **vars(ns))
+    try:
+        return cfg.resolved()
+    except ValueError as e:
+        parser.error(str(e))  # usage + exit status 2
+
+
+def _number(typ):
+    def convert(text: str):
+        if typ is int:
+            value = float(text)  # accepts 1e6
+            if value != int(value):
+                raise argparse.ArgumentTypeError(f"{text!r} is not an integer")
+            return int(value)
+        return typ(text)
+
+    convert.__name__ = typ.__name__
+    return convert
+
+
+def _modes(text: str) -> tuple[str, ...]:
+    modes = tuple(m.strip() for m in text.split(",") if m.strip())
+    bad = [m for m in modes if m not in MODES]
+    if bad or not modes:
+        raise argparse.ArgumentTypeError(f"unknown mode(s) {bad}; choose from {MODES}")
+    return modes
+
+
+def default_out(experiment: str) -> str:
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return os.path.join("runs", experiment, stamp)
+
+
+def main(defaults: ExperimentConfig, argv=None) -> dict | None:
+    """Entry point of the scenario modules; Ctrl-C keeps finished phases for a resume."""
+    cfg = parse_args(sys.argv[1:] if argv is None else argv, defaults)
+    if cfg.out is None:
+        cfg = dataclasses.replace(cfg, out=default_out(cfg.experiment))
+    try:
+        phases.prepare_out(cfg)  # an unwritable or foreign --out fails here, before training
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+    try:
+        return run_experiment(cfg)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished phases are kept in {cfg.out}; rerun with "
+              f"--out {cfg.out} to resume", file=sys.stderr)  # fmt: skip
+        raise SystemExit(130) from None
+
+
+def write_json(path: Path, obj) -> None:
+    """Atomic JSON write (a reader never sees half a file)."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2) + "\n")
+    os.replace(tmp, path)

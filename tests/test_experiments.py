@@ -1,0 +1,127 @@
+"""The paper-reproduction pipeline: ``--quick`` runs of every experiment, outputs and schema,
+resume from finished phases, and bad input rejected before any training."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from experiments import pipeline, three_rooms_key, two_rooms
+from experiments.report import validate_results
+
+OUTPUTS = ("results.json", "results.md", "curves.png", "checker.json", "episodes.gif",
+           "metrics.jsonl", "config.json")  # fmt: skip
+
+
+def _quick(module, out, *extra):
+    """``python -m experiments.<module> --quick --out OUT`` in this process."""
+    return pipeline.main(module.DEFAULTS, ["--quick", "--no-progress", "--out", str(out), *extra])
+
+
+def _check_outputs(out, experiment, modes=pipeline.MODES):
+    for name in OUTPUTS:
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    results = json.loads((out / "results.json").read_text())
+    validate_results(results)
+    assert results["experiment"] == experiment
+    assert set(results["methods"]) == set(modes)
+    for entry in results["methods"].values():
+        assert entry["seeds"] == 2
+        assert entry["final"]["episodes"] == 2 * 32
+        assert len(entry["curve"]) >= 1
+    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert {r["mode"] for r in records} == set(modes)
+    assert (out / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "episodes.gif").read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+    return results
+
+
+@pytest.fixture(scope="module")
+def two_rooms_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("two_rooms")
+    return out, _quick(two_rooms, out)
+
+
+def test_two_rooms_quick_outputs(two_rooms_run):
+    out, results = two_rooms_run
+    on_disk = _check_outputs(out, "two_rooms")
+    assert on_disk["methods"]["checker"]["final"] == pytest.approx(
+        results["methods"]["checker"]["final"]
+    )
+    assert (out / "checker" / "config.json").is_file()
+    assert (out / "checker_data.npz").is_file()
+    assert on_disk["checker"]["heldout"] is not None
+
+
+def test_two_rooms_rerun_resumes_from_finished_phases(two_rooms_run):
+    out, first = two_rooms_run
+    stamps = {p: p.stat().st_mtime_ns for p in [out / "checker_data.npz",
+                                                  out / "checker" / "params.msgpack"]}  # fmt: skip
+    ckpts = sorted(p.name for p in (out / "modes" / "checker" / "checkpoints").iterdir())
+    again = _quick(two_rooms, out)
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps  # phases a-c not redone
+    assert sorted(p.name for p in (out / "modes" / "checker" / "checkpoints").iterdir()) == ckpts
+    for mode in pipeline.MODES:  # same trained agents, same fixed evaluation seeds
+        assert again["methods"][mode]["final"] == first["methods"][mode]["final"]
+        assert again["methods"][mode]["curve"] == first["methods"][mode]["curve"]
+
+
+def test_three_rooms_key_quick_reuses_two_rooms_checker(two_rooms_run, tmp_path):
+    out, _ = two_rooms_run
+    results = _quick(three_rooms_key, tmp_path, "--checker", str(out / "checker"),
+                     "--modes", "checker,none")  # fmt: skip
+    on_disk = _check_outputs(tmp_path, "three_rooms_key", modes=("checker", "none"))
+    assert on_disk["checker"]["transfer"] is not None  # TwoRooms checker on ThreeRoomsKey
+    assert results["checker"]["test"] == on_disk["checker"]["test"]
+    assert not (tmp_path / "behaviour").exists()  # the checker was reused, not rebuilt
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--bogus"], "unrecognized arguments"),
+        (["--seeds", "0"], "--seeds must be a positive integer"),
+        (["--modes", "checker,magic"], "unknown mode"),
+        (["--quick", "--paper"], "exclude each other"),
+        (["--steps", "1.5"], "not an integer"),
+        (["--checker", "/nonexistent/checker"], "no trained checker there"),
+        (["--lookahead", "99"], "lookahead"),
+    ],
+)
+def test_bad_flags_print_usage_and_exit_nonzero(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        pipeline.parse_args(argv, two_rooms.DEFAULTS)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "usage:" in err and message in err
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root can write anywhere")
+def test_unwritable_out_fails_before_training(tmp_path, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    with pytest.raises(SystemExit) as exc:
+        _quick(two_rooms, locked / "run")
+    assert exc.value.code == 2
+    assert "not writable" in capsys.readouterr().err
+
+
+def test_out_that_is_a_file_fails_before_training(tmp_path, capsys):
+    target = tmp_path / "a-file"
+    target.write_text("not a directory")
+    with pytest.raises(SystemExit) as exc:
+        _quick(two_rooms, target)
+    assert exc.value.code == 2
+    assert "not writable" in capsys.readouterr().err
+    assert target.read_text() == "not a directory"  # nothing already written is lost
+
+
+def test_out_of_another_configuration_is_refused(tmp_path, capsys):
+    (tmp_path / "config.json").write_text(json.dumps({"experiment": "two_rooms", "seeds": 9}))
+    with pytest.raises(SystemExit) as exc:
+        _quick(two_rooms, tmp_path)
+    assert exc.value.code == 2
+    assert "another configuration" in capsys.readouterr().err
