@@ -1,0 +1,73 @@
+"""Evaluation episodes: a batch of fresh episodes played once each, on device.
+
+The protocol of DESIGN §7: episodes start from fixed evaluation seeds (the same keys for
+every method), run with the raw ``env.step`` (no auto-reset) for at most ``max_steps``
+steps, and report per episode whether it reached the goal, whether it violated its
+constraint at least once, and its return in **environment reward only** (shaping never
+enters evaluation).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+
+def violation_of(ts) -> jax.Array:
+    """Ground-truth violation flags of a (batched) timestep; zeros for envs without one."""
+    return ts.info.get("violation", jnp.zeros_like(ts.terminated))
+
+
+def play_episodes(
+    env,
+    act: Callable[[dict, jax.Array], jax.Array],
+    key: jax.Array,
+    num_episodes: int,
+) -> dict[str, jax.Array]:
+    """Play ``num_episodes`` episodes in parallel with ``act(obs_batch, key) -> actions``.
+
+    Layouts come from ``jax.random.split(key, num_episodes)``; action sampling uses keys
+    folded from ``key`` too, so a fixed key gives the same episodes for the same policy.
+    Returns ``(num_episodes,)`` arrays: ``success`` (bool, positive env reward), ``violated``
+    (bool, at least one violation), ``violations`` (int32), ``reward`` (float32, env return),
+    ``length`` (int32).
+    """
+    reset_key, act_key = jax.random.split(key)
+    states, ts = jax.vmap(env.reset)(jax.random.split(reset_key, num_episodes))
+    zeros_i = jnp.zeros((num_episodes,), jnp.int32)
+    zeros_f = jnp.zeros((num_episodes,), jnp.float32)
+    alive = jnp.ones((num_episodes,), bool)
+
+    def body(carry, t):
+        states, obs, alive, ret, viol, length = carry
+        actions = act(obs, jax.random.fold_in(act_key, t))
+        states, ts = jax.vmap(env.step)(states, actions)
+        live = alive.astype(jnp.int32)
+        ret = ret + ts.reward * alive
+        viol = viol + violation_of(ts).astype(jnp.int32) * live
+        length = length + live
+        alive = alive & ~(ts.terminated | ts.truncated)
+        return (states, ts.observation, alive, ret, viol, length), None
+
+    carry = (states, ts.observation, alive, zeros_f, zeros_i, zeros_i)
+    (_, _, _, ret, viol, length), _ = lax.scan(body, carry, jnp.arange(env.max_steps))
+    return {
+        "success": ret > 0,
+        "violated": viol > 0,
+        "violations": viol,
+        "reward": ret,
+        "length": length,
+    }
+
+
+def summarise(episodes: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """Rates over a batch of :func:`play_episodes` results (violation %, reward, success %)."""
+    return {
+        "violation_rate": jnp.mean(episodes["violated"].astype(jnp.float32)),
+        "mean_reward": jnp.mean(episodes["reward"]),
+        "success_rate": jnp.mean(episodes["success"].astype(jnp.float32)),
+        "mean_length": jnp.mean(episodes["length"].astype(jnp.float32)),
+    }

@@ -1,0 +1,156 @@
+"""Actor-critic conditioned on the egocentric observation and the English constraint.
+
+Observation branch: each cell's (object, colour, state) triple is one-hot encoded and mixed
+by a 1x1 convolution into ``cell_dim`` features (a learned embedding per field, summed; a
+one-hot matmul rather than ``nn.Embed`` because its gradient is a matmul too, where an
+embedding's is a scatter, slow on CPU), then 3x3 ``VALID`` Conv2D layers (:class:`PatchConv`)
+and a Dense layer.
+The agent's direction is appended one-hot.
+
+Language branch: Embed(32) -> GRU(128) over the token ids, read at the last real token
+(padding is ignored), as in the paper's checker.
+
+The language branch is exposed separately (:meth:`ActorCritic.encode_language`) because
+constraints come from a small fixed set of sentences: the learner encodes that table once
+per minibatch and gathers rows, instead of running the GRU for every sample (see
+``agents.ppo``). :meth:`ActorCritic.__call__` takes the sentence features, not tokens.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgrid import language
+from jaxgrid.constants import COLOR_NAMES, OBJECT_NAMES, STATE_NAMES
+
+_PAD_ID = language.VOCAB.index(language.PAD)
+_SIZES = (len(OBJECT_NAMES), len(COLOR_NAMES), len(STATE_NAMES))
+
+
+def _ortho(scale: float = 1.0):
+    """Flax's orthogonal initializer, computed one key at a time under ``vmap``.
+
+    Same values as ``nn.initializers.orthogonal(scale)``. Batched (``vmap``-ed over seeds)
+    LAPACK QR calls inside one jitted program were seen to hang XLA:CPU (jax/jaxlib 0.10.2:
+    ``jax.jit(jax.vmap(ActorCritic.init))`` never completed, every worker thread idle), so
+    under ``vmap`` the QR runs in a ``lax.map`` loop instead (``sequential_vmap``); it is an
+    initialisation-only cost.
+    """
+    base = nn.initializers.orthogonal(scale)
+
+    def init(key, shape, dtype=jnp.float32):
+        return jax.custom_batching.sequential_vmap(lambda k: base(k, shape, dtype))(key)
+
+    return init
+
+
+def one_hot_cells(image: jax.Array) -> jax.Array:
+    """uint8 (..., V, V, 3) MiniGrid encoding -> float32 (..., V, V, objects+colours+states)."""
+    image = image.astype(jnp.int32)
+    return jnp.concatenate([jax.nn.one_hot(image[..., i], n) for i, n in enumerate(_SIZES)], -1)
+
+
+class PatchConv(nn.Module):
+    """A 2-D convolution (``VALID``, stride 1) computed as patches @ kernel.
+
+    Same parameters and result as ``nn.Conv(features, (k, k), padding="VALID")``, but
+    expressed as static slices and one matmul: measured on XLA:CPU, a convolution inside a
+    ``lax.scan`` body (PPO's minibatch loop) ran about 2x slower than the same convolution
+    outside it, while a matmul does not suffer (``benchmarks/train_speed.py`` notes).
+    """
+
+    features: int
+    kernel_size: int = 3
+    kernel_init: Any = nn.initializers.lecun_normal()
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        k, c_in = self.kernel_size, x.shape[-1]
+        kernel = self.param("kernel", self.kernel_init, (k, k, c_in, self.features))
+        bias = self.param("bias", nn.initializers.zeros, (self.features,))
+        oh, ow = x.shape[-3] - k + 1, x.shape[-2] - k + 1
+        patches = jnp.concatenate(
+            [x[..., i : i + oh, j : j + ow, :] for i in range(k) for j in range(k)], axis=-1
+        )
+        return patches @ kernel.reshape(k * k * c_in, self.features) + bias
+
+
+class SentenceEncoder(nn.Module):
+    """Embed(word_dim) -> GRU(gru_dim); returns the hidden state after the last real token."""
+
+    vocab_size: int = language.vocab_size()
+    word_dim: int = 32
+    gru_dim: int = 128
+
+    @nn.compact
+    def __call__(self, tokens: jax.Array) -> jax.Array:
+        tokens = tokens.astype(jnp.int32)
+        lengths = jnp.maximum(jnp.sum(tokens != _PAD_ID, axis=-1), 1)
+        words = nn.Embed(self.vocab_size, self.word_dim)(tokens)
+        rnn = nn.RNN(nn.GRUCell(self.gru_dim, recurrent_kernel_init=_ortho()), return_carry=True)
+        carry, _ = rnn(words, seq_lengths=lengths)
+        return carry
+
+
+class ActorCritic(nn.Module):
+    """Policy logits, value and cost value from observation + projected sentence features.
+
+    Call with ``image`` uint8 (B, V, V, 3), ``direction`` int32 (B,) and ``lang`` float32
+    (B, hidden) from :meth:`project_language` of :meth:`encode_language`. Returns
+    ``(logits (B, A), value (B,), cost_value (B,))``; the cost head is only trained in the
+    Lagrangian mode. The sentence enters the trunk additively (``Dense(obs) + Dense(lang)``,
+    i.e. a Dense over their concatenation), so the language projection can be computed once
+    per sentence of the table rather than once per sample.
+
+    Sizes are small on purpose: the whole PPO update runs on 2 CPU cores, where the network
+    is most of the cost (measured in ``benchmarks/train_speed.py``).
+    """
+
+    num_actions: int = 7
+    cell_dim: int = 8
+    conv_channels: Sequence[int] = (16,)
+    hidden: int = 64
+    word_dim: int = 32
+    gru_dim: int = 128
+
+    def setup(self):
+        relu_init = _ortho(np.sqrt(2))
+        self.sentence = SentenceEncoder(word_dim=self.word_dim, gru_dim=self.gru_dim)
+        self.lang_proj = nn.Dense(self.hidden, use_bias=False, kernel_init=relu_init)
+        self.cells = nn.Dense(self.cell_dim, kernel_init=relu_init)
+        self.convs = [PatchConv(c, 3, kernel_init=relu_init) for c in self.conv_channels]
+        self.obs_proj = nn.Dense(self.hidden, kernel_init=relu_init)
+        self.actor = nn.Dense(self.num_actions, kernel_init=_ortho(0.01))
+        self.critic = nn.Dense(1, kernel_init=_ortho(1.0))
+        self.cost_critic = nn.Dense(1, kernel_init=_ortho(1.0))
+
+    def encode_language(self, tokens: jax.Array) -> jax.Array:
+        """(..., L) token ids -> (..., gru_dim) sentence features."""
+        return self.sentence(tokens)
+
+    def project_language(self, features: jax.Array) -> jax.Array:
+        """(..., gru_dim) sentence features -> (..., hidden) contribution to the trunk."""
+        return self.lang_proj(features)
+
+    def __call__(self, image, direction, lang):
+        x = nn.relu(self.cells(one_hot_cells(image)))
+        for conv in self.convs:
+            x = nn.relu(conv(x))
+        x = x.reshape(x.shape[:-3] + (-1,))
+        x = jnp.concatenate([x, jax.nn.one_hot(direction, 4)], axis=-1)
+        h = jnp.tanh(self.obs_proj(x) + lang)
+        return self.actor(h), self.critic(h)[..., 0], self.cost_critic(h)[..., 0]
+
+    def sentence_features(self, tokens: jax.Array) -> jax.Array:
+        """Tokens -> the ``lang`` input of :meth:`__call__` (GRU, then projection)."""
+        return self.project_language(self.encode_language(tokens))
+
+    def init_all(self, image, direction, tokens):
+        """Initialisation path touching every submodule (use as ``method=`` in ``init``)."""
+        return self(image, direction, self.sentence_features(tokens))

@@ -1,0 +1,589 @@
+"""PPO fused into one jitted update: rollout, checker, reward shaping, GAE, optimisation.
+
+``make_train(config, checker) -> train(key)`` in the PureJaxRL style, with a frozen
+dataclass config. One update is
+
+1. a ``lax.scan`` over ``num_steps`` steps of ``num_envs`` auto-resetting environments;
+   each step also pushes the observation into a per-env window of the last ``n`` frames and,
+   in the checker modes, asks the checker for the violation probability of that window;
+2. rewards shaped by the reward mode (see :data:`REWARD_MODES`);
+3. GAE, where truncated episodes bootstrap from the value of their final observation
+   (truncation is never treated as termination);
+4. ``update_epochs`` x ``num_minibatches`` clipped-PPO steps.
+
+``train(key)`` scans ``num_updates // eval_every`` chunks of ``eval_every`` updates, each
+followed by an evaluation on fixed seeds; it is pure, so ``jax.jit(jax.vmap(train))`` runs
+several seeds at once. :mod:`agents.runner` drives the same pieces chunk by chunk from the
+host for progress bars, logs and checkpoints.
+
+Where the time goes, and what is done about it:
+
+* Constraints come from a small fixed table of sentences (28 to 140 per scenario). The GRU
+  encodes the *table* once per minibatch (and once per rollout), and each sample gathers its
+  row by sentence index, instead of running the GRU on every sample. Same gradients.
+* The checker's per-frame embedding is computed once per frame and kept in a ring buffer of
+  embeddings (2 frame embeddings per env step instead of ``n``), and its sentence features
+  are computed once per training run (the checker is frozen). The probabilities equal
+  :func:`checker.reward.violation_prob` on the raw frame buffer (tested).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import flax.struct as struct
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jax import lax
+
+import jaxgrid
+from agents.evaluation import play_episodes, summarise, violation_of
+from agents.networks import ActorCritic
+from jaxgrid import language
+from jaxgrid.wrappers import AutoReset
+
+REWARD_MODES = ("none", "shaped", "checker", "lagrangian")
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """Everything that defines a training run (hashable, so it can be a static argument).
+
+    Reward modes: ``none`` env reward; ``shaped`` env reward minus ``penalty`` on every
+    ground-truth violation (the paper's hand-shaped baseline); ``checker`` env reward minus
+    ``penalty`` whenever the checker's violation probability for the window ending at the new
+    observation exceeds ``checker_threshold`` (``soft_checker``: minus ``penalty`` times the
+    probability); ``lagrangian`` PPO-Lagrangian with the checker's alarms as the cost, a
+    cost critic, and a multiplier learned to hold the per-step cost rate at ``cost_target``.
+
+    ``penalty_warmup`` ramps the penalty of ``shaped`` and ``checker`` linearly from 0 to
+    ``penalty`` over that fraction of the updates. Measured on TwoRooms: with the full penalty
+    from the first update, both modes collapse to an agent that stays put (an untrained
+    agent meets penalties far more often than the goal), whichever of them gives the penalty.
+    """
+
+    env_id: str = "TwoRooms-v0"
+    env_kwargs: tuple[tuple[str, Any], ...] = ()
+    num_envs: int = 256
+    num_steps: int = 128
+    total_timesteps: int = 2_000_000
+    update_epochs: int = 4
+    num_minibatches: int = 8
+    lr: float = 2.5e-4
+    anneal_lr: bool = True
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    ent_coef: float = 0.01
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    reward_mode: str = "none"
+    penalty: float = 1.0
+    penalty_warmup: float = 0.0
+    checker_threshold: float = 0.5
+    soft_checker: bool = False
+    cost_target: float = 0.0
+    lagrangian_lr: float = 0.05
+    lagrangian_init: float = 0.0
+    eval_every: int = 10
+    eval_episodes: int = 50
+    eval_seed: int = 20_200_207
+    seed: int = 0
+
+    def __post_init__(self):
+        try:  # a dict or pairs -> sorted pairs, so that the config stays hashable
+            pairs = tuple(sorted(dict(self.env_kwargs).items()))
+            hash(pairs)
+        except (TypeError, ValueError) as e:
+            raise ValueError(
+                f"PPOConfig.env_kwargs must be (name, hashable value) pairs or a dict, got "
+                f"{self.env_kwargs!r}"
+            ) from e
+        object.__setattr__(self, "env_kwargs", pairs)
+        positive = (
+            "num_envs", "num_steps", "total_timesteps", "update_epochs", "num_minibatches",
+            "eval_every", "eval_episodes",
+        )  # fmt: skip
+        for name in positive:
+            value = getattr(self, name)
+            if not isinstance(value, int | np.integer) or value <= 0:
+                raise ValueError(f"PPOConfig.{name} must be a positive integer, got {value!r}")
+        for name in ("lr", "clip_eps", "max_grad_norm"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"PPOConfig.{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("gamma", "gae_lambda", "checker_threshold", "penalty_warmup"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"PPOConfig.{name} must be in [0, 1], got {getattr(self, name)}")
+        nonnegative = (
+            "ent_coef",
+            "vf_coef",
+            "penalty",
+            "cost_target",
+            "lagrangian_lr",
+            "lagrangian_init",
+        )
+        for name in nonnegative:
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"PPOConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+        if self.reward_mode not in REWARD_MODES:
+            raise ValueError(
+                f"PPOConfig.reward_mode must be one of {REWARD_MODES}, got {self.reward_mode!r}"
+            )
+        if self.batch_size % self.num_minibatches:
+            raise ValueError(
+                f"PPOConfig.num_minibatches ({self.num_minibatches}) must divide num_envs x "
+                f"num_steps ({self.batch_size})"
+            )
+        if self.num_envs % self.num_minibatches:
+            raise ValueError(
+                f"PPOConfig.num_envs ({self.num_envs}) must be divisible by num_minibatches "
+                f"({self.num_minibatches})"
+            )
+        if self.num_updates < self.eval_every:
+            raise ValueError(
+                f"PPOConfig.total_timesteps ({self.total_timesteps}) gives {self.num_updates} "
+                f"updates of {self.batch_size} steps, fewer than eval_every ({self.eval_every})"
+            )
+
+    @property
+    def batch_size(self) -> int:
+        return self.num_envs * self.num_steps
+
+    @property
+    def num_chunks(self) -> int:
+        """Evaluation chunks of ``eval_every`` updates (the run is rounded down to whole ones)."""
+        return (self.total_timesteps // self.batch_size) // self.eval_every
+
+    @property
+    def num_updates(self) -> int:
+        return self.total_timesteps // self.batch_size
+
+    @property
+    def uses_checker(self) -> bool:
+        return self.reward_mode in ("checker", "lagrangian")
+
+    def make_env(self):
+        return jaxgrid.make(self.env_id, **dict(self.env_kwargs))
+
+
+def check_checker(config: PPOConfig, checker, env) -> None:
+    """Fail fast, before any compile, when the checker does not fit the run."""
+    if config.uses_checker and checker is None:
+        raise ValueError(
+            f"PPOConfig.reward_mode={config.reward_mode!r} needs a trained checker: pass "
+            "checker=checker.load(DIR) (or train one with `python -m checker.train`)"
+        )
+    if checker is not None and checker.config.view_size != env.view_size:
+        raise ValueError(
+            f"checker view_size {checker.config.view_size} != env view_size {env.view_size}"
+        )
+
+
+# ----------------------------------------------------------------------------------------
+# Pytrees carried through training
+# ----------------------------------------------------------------------------------------
+class EnvCarry(struct.PyTreeNode):
+    """Everything with a leading ``num_envs`` axis (sharded over devices)."""
+
+    state: Any
+    obs: dict
+    sentence: jax.Array  # int32: row of the sentence table
+    frames: jax.Array  # float32 (E, n - 1, D): checker embeddings of the last n-1 frames
+    ep_return: jax.Array
+    ep_length: jax.Array
+
+
+class RunnerState(struct.PyTreeNode):
+    params: Any
+    opt_state: Any
+    lagrange: jax.Array  # float32 multiplier of the Lagrangian mode (0 otherwise)
+    key: jax.Array
+    update: jax.Array  # int32 number of updates done
+    env: EnvCarry
+
+
+class Transition(struct.PyTreeNode):
+    image: jax.Array
+    direction: jax.Array
+    sentence: jax.Array
+    action: jax.Array
+    log_prob: jax.Array
+    value: jax.Array
+    cost_value: jax.Array
+    reward: jax.Array  # shaped training reward, truncation bootstrap included
+    cost: jax.Array  # Lagrangian cost, truncation bootstrap included
+    done: jax.Array
+
+
+# ----------------------------------------------------------------------------------------
+# Building blocks
+# ----------------------------------------------------------------------------------------
+def sentence_table(env) -> np.ndarray:
+    """Token ids (K, L) of every sentence the env's split can produce (one pad row if none)."""
+    if not hasattr(env, "constraint_table"):
+        return np.zeros((1, language.MAX_LEN), np.int32)
+    return np.asarray(env.constraint_table()["tokens"], np.int32)
+
+
+def sentence_index(tokens: jax.Array | None, table: jax.Array) -> jax.Array:
+    """Row of ``table`` equal to each row of ``tokens`` (B, L); 0 when obs has no constraint."""
+    if tokens is None:
+        return jnp.zeros((), jnp.int32)
+    match = jnp.all(tokens[:, None, :] == table[None, :, :], axis=-1)
+    return jnp.argmax(match, axis=-1).astype(jnp.int32)
+
+
+class Learner(struct.PyTreeNode):
+    """The pure functions of a run, closed over its static configuration.
+
+    ``init(key) -> RunnerState``, ``update(runner) -> (runner, metrics)``,
+    ``evaluate(params, key, num_episodes) -> dict`` and ``chunk(runner) -> (runner, metrics)``
+    (``eval_every`` updates and one evaluation). Built by :func:`make_learner`.
+    """
+
+    config: PPOConfig = struct.field(pytree_node=False)
+    env: Any = struct.field(pytree_node=False)
+    network: ActorCritic = struct.field(pytree_node=False)
+    optimizer: Any = struct.field(pytree_node=False)
+    has_language: bool = struct.field(pytree_node=False, default=True)
+    checker: Any = None
+    table: jax.Array = None  # int32 (K, L)
+
+    # -- pieces -------------------------------------------------------------------------
+    def _lang_table(self, params):
+        if not self.has_language:
+            return jnp.zeros((1, self.network.hidden), jnp.float32)
+        return self.network.apply(params, self.table, method=ActorCritic.sentence_features)
+
+    def _policy(self, params, lang_table, image, direction, sentence):
+        # A one-hot matmul instead of a gather: its gradient is a matmul, not a CPU scatter.
+        lang = jax.nn.one_hot(sentence, lang_table.shape[0], dtype=lang_table.dtype) @ lang_table
+        return self.network.apply(params, image, direction, lang)
+
+    def _sentence(self, obs):
+        return sentence_index(obs.get("constraint"), self.table) * jnp.ones_like(obs["direction"])
+
+    def _embed(self, images):
+        if self.checker is None:
+            return jnp.zeros(images.shape[:-3] + (1,), jnp.float32)
+        return self.checker.embed_states(images)
+
+    def _empty_frames(self, num_envs):
+        pad = self._embed(jnp.zeros((1, self.env.view_size, self.env.view_size, 3), jnp.uint8))
+        # Without a checker one placeholder frame: orbax cannot checkpoint zero-size arrays.
+        n = self.checker.config.window - 1 if self.checker is not None else 1
+        return jnp.broadcast_to(pad[:, None, :], (num_envs, n, pad.shape[-1]))
+
+    def _push(self, frames, emb, start):
+        """Ring buffer of checker embeddings; the start of an episode clears older frames."""
+        if self.checker is None or frames.shape[1] == 0:
+            return frames
+        pad = self._empty_frames(frames.shape[0])
+        older = jnp.where(start[:, None, None], pad, frames)
+        return jnp.concatenate([older[:, 1:], emb[:, None]], axis=1)
+
+    def _checker_prob(self, frames, emb, sentence):
+        """P(violation) for the window (frames..., emb) of each env."""
+        window = jnp.concatenate([frames, emb[:, None]], axis=1)
+        lang = self.checker.encode_language(self.table)[sentence]
+        return jax.nn.sigmoid(self.checker.classify(window, lang))
+
+    # -- init ---------------------------------------------------------------------------
+    def init(self, key: jax.Array) -> RunnerState:
+        c, env = self.config, self.env
+        key, net_key, env_key = jax.random.split(key, 3)
+        states, ts = jax.vmap(env.reset)(jax.random.split(env_key, c.num_envs))
+        obs = ts.observation
+        params = self.network.init(
+            net_key, obs["image"][:1], obs["direction"][:1], self.table[:1],
+            method=ActorCritic.init_all,
+        )  # fmt: skip
+        frames = self._empty_frames(c.num_envs)
+        if self.checker is not None:
+            start = jnp.ones((c.num_envs,), bool)
+            frames = self._push(frames, self._embed(obs["image"]), start)
+        zeros = jnp.zeros((c.num_envs,), jnp.float32)
+        carry = EnvCarry(
+            state=states, obs=obs, sentence=self._sentence(obs), frames=frames,
+            ep_return=zeros, ep_length=zeros.astype(jnp.int32),
+        )  # fmt: skip
+        return RunnerState(
+            params=params,
+            opt_state=self.optimizer.init(params),
+            lagrange=jnp.float32(c.lagrangian_init if c.reward_mode == "lagrangian" else 0.0),
+            key=key,
+            update=jnp.zeros((), jnp.int32),
+            env=carry,
+        )
+
+    # -- rollout ------------------------------------------------------------------------
+    def _env_step(self, params, lang_table, carry: EnvCarry, key, penalty=None):
+        c, env = self.config, AutoReset(self.env)
+        penalty = c.penalty if penalty is None else penalty
+        obs = carry.obs
+        logits, value, cost_value = self._policy(
+            params, lang_table, obs["image"], obs["direction"], carry.sentence
+        )
+        action = jax.random.categorical(key, logits)
+        log_prob = jax.nn.log_softmax(logits)[jnp.arange(action.shape[0]), action]
+        states, ts = jax.vmap(env.step)(carry.state, action)
+        done = ts.terminated | ts.truncated
+        final = ts.info["final_observation"]
+        violation = violation_of(ts)
+
+        alarm = prob = jnp.zeros_like(ts.reward)
+        frames = carry.frames
+        if self.checker is not None:
+            emb = self._embed(jnp.stack([final["image"], ts.observation["image"]]))
+            prob = self._checker_prob(carry.frames, emb[0], carry.sentence)
+            alarm = (prob > c.checker_threshold).astype(jnp.float32)
+            # Append the returned observation (the final one where the episode goes on); where
+            # it ended, the window restarts at the next episode's first observation.
+            frames = self._push(carry.frames, emb[1], done)
+        signal = prob if c.soft_checker else alarm
+        cost = jnp.zeros_like(ts.reward)
+        reward = ts.reward
+        if c.reward_mode == "shaped":
+            reward = reward - penalty * violation.astype(jnp.float32)
+        elif c.reward_mode == "checker":
+            reward = reward - penalty * signal
+        elif c.reward_mode == "lagrangian":
+            cost = signal
+
+        # Truncation bootstraps from the final observation's values, only where the episode
+        # was cut by the time limit: a step that reaches the goal (or lava) on the last allowed
+        # step is both terminated and truncated, and is terminal.
+        truncated = ts.truncated & ~ts.terminated
+
+        def final_values():
+            _, v, cv = self._policy(
+                params, lang_table, final["image"], final["direction"], carry.sentence
+            )
+            return v, cv
+
+        zeros = jnp.zeros_like(value)
+        v_final, cv_final = lax.cond(jnp.any(truncated), final_values, lambda: (zeros, zeros))
+        trunc = truncated.astype(jnp.float32)
+        transition = Transition(
+            image=obs["image"], direction=obs["direction"], sentence=carry.sentence,
+            action=action, log_prob=log_prob, value=value, cost_value=cost_value,
+            reward=reward + c.gamma * trunc * v_final, cost=cost + c.gamma * trunc * cv_final,
+            done=done,
+        )  # fmt: skip
+        ep_return = carry.ep_return + ts.reward
+        ep_length = carry.ep_length + 1
+        stats = {
+            "episodes": done.sum(),
+            "episode_return": jnp.where(done, ep_return, 0.0).sum(),
+            "successes": (done & (ts.reward > 0)).sum(),
+            "violations": violation.sum(),
+            "alarms": alarm.sum(),
+            "cost": cost.sum(),
+        }
+        carry = EnvCarry(
+            state=states, obs=ts.observation, sentence=self._sentence(ts.observation),
+            frames=frames, ep_return=jnp.where(done, 0.0, ep_return),
+            ep_length=jnp.where(done, 0, ep_length),
+        )  # fmt: skip
+        return carry, (transition, stats)
+
+    # -- learning -----------------------------------------------------------------------
+    def _gae(self, values, rewards, dones, last_value):
+        c = self.config
+
+        def step(carry, x):
+            gae, next_value = carry
+            value, reward, done = x
+            not_done = 1.0 - done.astype(jnp.float32)
+            delta = reward + c.gamma * next_value * not_done - value
+            gae = delta + c.gamma * c.gae_lambda * not_done * gae
+            return (gae, value), gae
+
+        init = (jnp.zeros_like(last_value), last_value)
+        _, adv = lax.scan(step, init, (values, rewards, dones), reverse=True)
+        return adv, adv + values
+
+    def _loss(self, params, batch, lagrange):
+        c = self.config
+        lang_table = self._lang_table(params)
+        logits, value, cost_value = self._policy(
+            params, lang_table, batch["image"], batch["direction"], batch["sentence"]
+        )
+        log_probs = jax.nn.log_softmax(logits)
+        log_prob = jnp.take_along_axis(log_probs, batch["action"][:, None], axis=-1)[:, 0]
+        entropy = -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1).mean()
+
+        adv = batch["advantage"]
+        if c.reward_mode == "lagrangian":
+            adv = (adv - lagrange * batch["cost_advantage"]) / (1.0 + lagrange)
+        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        ratio = jnp.exp(log_prob - batch["log_prob"])
+        clipped = jnp.clip(ratio, 1 - c.clip_eps, 1 + c.clip_eps)
+        actor_loss = -jnp.minimum(ratio * adv, clipped * adv).mean()
+
+        def value_loss(pred, old, target):
+            pred_clipped = old + jnp.clip(pred - old, -c.clip_eps, c.clip_eps)
+            return 0.5 * jnp.maximum((pred - target) ** 2, (pred_clipped - target) ** 2).mean()
+
+        v_loss = value_loss(value, batch["value"], batch["target"])
+        cv_loss = jnp.zeros(())
+        if c.reward_mode == "lagrangian":
+            cv_loss = value_loss(cost_value, batch["cost_value"], batch["cost_target"])
+        total = actor_loss + c.vf_coef * (v_loss + cv_loss) - c.ent_coef * entropy
+        approx_kl = jnp.mean((ratio - 1.0) - jnp.log(ratio))
+        return total, {
+            "loss": total, "actor_loss": actor_loss, "value_loss": v_loss,
+            "cost_value_loss": cv_loss, "entropy": entropy, "approx_kl": approx_kl,
+        }  # fmt: skip
+
+    def penalty_at(self, update: jax.Array) -> jax.Array:
+        """The shaping penalty of update ``update`` (0-based): ramped over the warm-up."""
+        c = self.config
+        warmup = c.penalty_warmup * c.num_updates
+        if warmup <= 0:
+            return jnp.float32(c.penalty)
+        return c.penalty * jnp.minimum(1.0, (update + 1) / warmup).astype(jnp.float32)
+
+    def update(self, runner: RunnerState):
+        """One PPO update: rollout, GAE, epochs x minibatches. Returns per-update metrics."""
+        c = self.config
+        key, rollout_key, perm_key = jax.random.split(runner.key, 3)
+        params = runner.params
+        lang_table = self._lang_table(params)
+        penalty = self.penalty_at(runner.update)
+
+        def scan_step(carry, k):
+            return self._env_step(params, lang_table, carry, k, penalty)
+
+        env, (traj, stats) = lax.scan(
+            scan_step, runner.env, jax.random.split(rollout_key, c.num_steps)
+        )
+        _, last_value, last_cost_value = self._policy(
+            params, lang_table, env.obs["image"], env.obs["direction"], env.sentence
+        )
+        adv, target = self._gae(traj.value, traj.reward, traj.done, last_value)
+        batch = {
+            "image": traj.image, "direction": traj.direction, "sentence": traj.sentence,
+            "action": traj.action, "log_prob": traj.log_prob, "value": traj.value,
+            "advantage": adv, "target": target,
+        }  # fmt: skip
+        if c.reward_mode == "lagrangian":
+            cadv, ctarget = self._gae(traj.cost_value, traj.cost, traj.done, last_cost_value)
+            batch.update(cost_value=traj.cost_value, cost_advantage=cadv, cost_target=ctarget)
+        flat = jax.tree.map(lambda x: x.reshape((c.batch_size,) + x.shape[2:]), batch)
+
+        def epoch(carry, k):
+            params, opt_state = carry
+            perm = jax.random.permutation(k, c.batch_size)
+            shuffled = jax.tree.map(
+                lambda x: x[perm].reshape((c.num_minibatches, -1) + x.shape[1:]), flat
+            )
+
+            def minibatch(carry, mb):
+                params, opt_state = carry
+                grads, info = jax.grad(self._loss, has_aux=True)(params, mb, runner.lagrange)
+                updates, opt_state = self.optimizer.update(grads, opt_state, params)
+                return (optax.apply_updates(params, updates), opt_state), info
+
+            return lax.scan(minibatch, (params, opt_state), shuffled)
+
+        (params, opt_state), info = lax.scan(
+            epoch, (params, runner.opt_state), jax.random.split(perm_key, c.update_epochs)
+        )
+        cost_rate = stats["cost"].sum() / c.batch_size
+        lagrange = runner.lagrange
+        if c.reward_mode == "lagrangian":
+            lagrange = jnp.maximum(0.0, lagrange + c.lagrangian_lr * (cost_rate - c.cost_target))
+        metrics = jax.tree.map(jnp.mean, info)
+        totals = jax.tree.map(jnp.sum, stats)
+        metrics.update(
+            {k: totals[k] for k in ("episodes", "successes", "violations", "alarms")},
+            episode_return=totals["episode_return"] / jnp.maximum(totals["episodes"], 1),
+            cost_rate=cost_rate,
+            lagrange=lagrange,
+        )
+        runner = runner.replace(
+            params=params, opt_state=opt_state, lagrange=lagrange, key=key,
+            update=runner.update + 1, env=env,
+        )  # fmt: skip
+        return runner, metrics
+
+    # -- evaluation ---------------------------------------------------------------------
+    def act(self, params, obs, key, table=None):
+        """Sample actions for a batch of observations (any sentence: the GRU runs on it)."""
+        tokens = obs.get("constraint")
+        if tokens is None:
+            lang = jnp.zeros((obs["direction"].shape[0], self.network.hidden), jnp.float32)
+        else:
+            lang = self.network.apply(params, tokens, method=ActorCritic.sentence_features)
+        logits, _, _ = self.network.apply(params, obs["image"], obs["direction"], lang)
+        return jax.random.categorical(key, logits)
+
+    def evaluate(self, params, key, num_episodes: int, env=None):
+        """Rates of :func:`agents.evaluation.play_episodes` (fixed ``key`` = fixed seeds)."""
+        env = self.env if env is None else env
+        return play_episodes(env, lambda o, k: self.act(params, o, k), key, num_episodes)
+
+    def chunk(self, runner: RunnerState):
+        """``eval_every`` updates, then evaluation on the fixed evaluation seeds."""
+        runner, metrics = lax.scan(
+            lambda r, _: self.update(r), runner, None, self.config.eval_every
+        )
+        eval_key = jax.random.PRNGKey(self.config.eval_seed)
+        evaluation = summarise(self.evaluate(runner.params, eval_key, self.config.eval_episodes))
+        return runner, {"train": metrics, "eval": evaluation}
+
+
+def make_learner(config: PPOConfig, checker=None) -> Learner:
+    """Validate ``config`` (and ``checker``) and build the run's :class:`Learner`."""
+    env = config.make_env()
+    check_checker(config, checker, env)
+    if config.reward_mode in ("none", "shaped"):
+        checker = None  # not needed: skip its cost
+    num_updates = config.num_chunks * config.eval_every
+
+    def schedule(count):
+        per_update = config.update_epochs * config.num_minibatches
+        frac = 1.0 - (count // per_update) / num_updates
+        return config.lr * frac if config.anneal_lr else config.lr
+
+    optimizer = optax.chain(
+        optax.clip_by_global_norm(config.max_grad_norm),
+        optax.adam(schedule, eps=1e-5),
+    )
+    return Learner(
+        config=config,
+        env=env,
+        network=ActorCritic(num_actions=env.num_actions),
+        optimizer=optimizer,
+        checker=checker,
+        has_language=hasattr(env, "constraint_table"),
+        table=jnp.asarray(sentence_table(env)),
+    )
+
+
+def make_train(config: PPOConfig, checker=None):
+    """PureJaxRL-style: returns a pure ``train(key) -> dict``; jit and vmap it freely.
+
+    The result holds the final ``runner`` state, ``train`` metrics of every update (leading
+    axes ``(num_chunks, eval_every)``) and ``eval`` rates after every chunk
+    (``(num_chunks,)``); :func:`evaluation_steps` gives the env steps done at each
+    evaluation.
+    """
+    learner = make_learner(config, checker)
+
+    def train(key):
+        runner = learner.init(key)
+        runner, metrics = lax.scan(lambda r, _: learner.chunk(r), runner, None, config.num_chunks)
+        return {"runner": runner, **metrics}
+
+    return train
+
+
+def evaluation_steps(config: PPOConfig) -> np.ndarray:
+    """Env steps done at each of the ``num_chunks`` evaluations of :func:`make_train`."""
+    per_chunk = config.eval_every * config.batch_size
+    return per_chunk * np.arange(1, config.num_chunks + 1, dtype=np.int64)
