@@ -102,11 +102,14 @@ class ActorCritic(nn.Module):
     """Policy logits, value and cost value from observation + projected sentence features.
 
     Call with ``image`` uint8 (B, V, V, 3), ``direction`` int32 (B,) and ``lang`` float32
-    (B, hidden) from :meth:`project_language` of :meth:`encode_language`. Returns
+    (B, 2 * hidden) from :meth:`project_language` of :meth:`encode_language`. Returns
     ``(logits (B, A), value (B,), cost_value (B,))``; the cost head is only trained in the
-    Lagrangian mode. The sentence enters the trunk additively (``Dense(obs) + Dense(lang)``,
-    i.e. a Dense over their concatenation), so the language projection can be computed once
-    per sentence of the table rather than once per sample.
+    Lagrangian mode. The sentence modulates the observation features FiLM-style,
+    ``tanh(Dense(obs) * (1 + scale) + shift)`` with ``(scale, shift) = Dense(lang)``, then one
+    more tanh layer: avoiding *the red door* needs the product of "red" in the sentence and
+    "red door ahead" in the view, which an additive merge into one layer expresses poorly.
+    The projection depends on the sentence only, so it is computed once per sentence of the
+    table rather than once per sample.
 
     Sizes are small on purpose: the whole PPO update runs on 2 CPU cores, where the network
     is most of the cost (measured in ``benchmarks/train_speed.py``).
@@ -122,20 +125,26 @@ class ActorCritic(nn.Module):
     def setup(self):
         relu_init = _ortho(np.sqrt(2))
         self.sentence = SentenceEncoder(word_dim=self.word_dim, gru_dim=self.gru_dim)
-        self.lang_proj = nn.Dense(self.hidden, use_bias=False, kernel_init=relu_init)
+        self.lang_proj = nn.Dense(self.lang_dim, use_bias=False, kernel_init=_ortho(0.1))
         self.cells = nn.Dense(self.cell_dim, kernel_init=relu_init)
         self.convs = [PatchConv(c, 3, kernel_init=relu_init) for c in self.conv_channels]
         self.obs_proj = nn.Dense(self.hidden, kernel_init=relu_init)
+        self.mix = nn.Dense(self.hidden, kernel_init=relu_init)
         self.actor = nn.Dense(self.num_actions, kernel_init=_ortho(0.01))
         self.critic = nn.Dense(1, kernel_init=_ortho(1.0))
         self.cost_critic = nn.Dense(1, kernel_init=_ortho(1.0))
+
+    @property
+    def lang_dim(self) -> int:
+        """Width of the ``lang`` input: a FiLM scale and shift per hidden unit."""
+        return 2 * self.hidden
 
     def encode_language(self, tokens: jax.Array) -> jax.Array:
         """(..., L) token ids -> (..., gru_dim) sentence features."""
         return self.sentence(tokens)
 
     def project_language(self, features: jax.Array) -> jax.Array:
-        """(..., gru_dim) sentence features -> (..., hidden) contribution to the trunk."""
+        """(..., gru_dim) sentence features -> (..., 2 * hidden) FiLM scale and shift."""
         return self.lang_proj(features)
 
     def __call__(self, image, direction, lang):
@@ -144,7 +153,9 @@ class ActorCritic(nn.Module):
             x = nn.relu(conv(x))
         x = x.reshape(x.shape[:-3] + (-1,))
         x = jnp.concatenate([x, jax.nn.one_hot(direction, 4)], axis=-1)
-        h = jnp.tanh(self.obs_proj(x) + lang)
+        scale, shift = jnp.split(lang, 2, axis=-1)
+        h = jnp.tanh(self.obs_proj(x) * (1.0 + scale) + shift)
+        h = jnp.tanh(self.mix(h))
         return self.actor(h), self.critic(h)[..., 0], self.cost_critic(h)[..., 0]
 
     def sentence_features(self, tokens: jax.Array) -> jax.Array:
