@@ -87,7 +87,9 @@ def ppo_config(cfg, mode: str, *, env_id: str | None = None, steps: int | None =
             env_id=env_id or cfg.env_id, reward_mode=mode, total_timesteps=max(steps, batch),
             num_envs=cfg.num_envs, num_steps=cfg.num_steps,
             num_minibatches=cfg.num_minibatches, update_epochs=cfg.update_epochs,
-            penalty=cfg.penalty, eval_every=max(1, updates // cfg.curve_points),
+            penalty=cfg.penalty, penalty_start=cfg.penalty_start,
+            penalty_warmup=cfg.penalty_warmup,
+            eval_every=max(1, updates // cfg.curve_points),
             eval_episodes=cfg.eval_episodes, seed=cfg.seed,
         )  # fmt: skip
     except ValueError as e:

@@ -58,6 +58,8 @@ class ExperimentConfig:
     num_minibatches: int = 4
     update_epochs: int = 4
     penalty: float = 1.0
+    penalty_start: float = 0.4  # no penalty for this fraction of training (see PPOConfig)
+    penalty_warmup: float = 0.1  # then a linear ramp over this fraction
     curve_points: int | None = None
     eval_episodes: int | None = None
     final_episodes: int | None = None
@@ -95,6 +97,10 @@ class ExperimentConfig:
             raise ValueError(f"--gif-episodes must be >= 0, got {self.gif_episodes}")
         if self.penalty < 0:
             raise ValueError(f"--penalty must be >= 0, got {self.penalty}")
+        for name in ("penalty_start", "penalty_warmup"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be in [0, 1], got "
+                                 f"{getattr(self, name)}")  # fmt: skip
         import jaxgrid
 
         for name in ("env_id", "checker_env_id"):
