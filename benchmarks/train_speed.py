@@ -1,0 +1,509 @@
+"""Training throughput of the fused PPO, per reward mode, against the PureJaxRL-style baseline.
+
+``python -m benchmarks.train_speed`` prints one JSON line per reward mode::
+
+    {"mode": "checker", "sps": ..., "compile_s": ..., "device": ..., "baseline_sps": ...,
+     "ratio": ..., "num_envs": 256, "num_steps": 128, "epochs": 4, "minibatches": 8, ...}
+
+Protocol (DESIGN.md §8, "Training throughput"):
+
+* ours: ``agents.ppo`` on ``--env`` (TwoRooms-v0), one :class:`~agents.ppo.Learner` per mode;
+  the checker modes use a freshly initialised checker (its cost does not depend on its
+  weights). The timed executable is ``jit(lax.scan(learner.update))`` over ``U`` updates, the
+  form training runs in (:meth:`Learner.chunk` scans updates too); it is compiled with
+  ``.lower().compile()``, which is ``compile_s``, and the runner state is donated;
+* baseline: :func:`benchmarks.purejaxrl_ppo.make_train` (NAVIX DoorKey-8x8, PureJaxRL's
+  ``ppo_minigrid`` structure) with the same envs x steps x epochs x minibatches and ``U``
+  updates, also compiled ahead and then run (its ``train`` includes a negligible init);
+* ``--timesteps`` env steps are timed per mode, split into ``--repeats`` short calls of
+  ``U`` updates each (default: 20 calls of 3 updates). Each repeat is one round that runs the
+  baseline, then every mode, back to back, so that the ratio ``mode sps / baseline sps`` of a
+  round shares the machine's load of those few seconds; ``sps`` and ``ratio`` are medians
+  over rounds (``sps_all``/``ratio_all`` list them), ``sps_overall`` is all timed steps over
+  all timed seconds. Every call ends with ``block_until_ready``; nothing else is timed.
+
+``--profile`` adds a ``breakdown`` to each line, seconds per update; each piece is jitted on
+its own, the pieces are timed in ``min(--repeats, 5)`` interleaved rounds and every figure
+(differences included) is a median over rounds:
+
+* ``update_s``: one ``learner.update``; ``rollout_s``: the ``lax.scan`` of the learner's env
+  step alone; ``optimisation_s`` = update - rollout (GAE, shuffles, epochs x minibatches);
+* ``env_step_s``: bare env steps (random actions, the same auto-reset wrapper, ``vmap``);
+* ``policy_and_bookkeeping_s``: rollout without checker - env steps (policy forward pass,
+  action sampling, truncation bootstrap, sentence lookup, episode statistics);
+* ``checker_s``: rollout of this mode - rollout without checker (0 for none/shaped);
+* ``loss_forward_s``: the loss's forward pass alone over epochs x minibatches minibatches;
+  ``backward_optimizer_gae_shuffle_s`` = optimisation - loss forward.
+
+For the baseline, ``baseline_breakdown`` has its seconds per update and NAVIX's bare env
+steps per update. The pieces use the learner's private functions: a profile, not an API.
+
+Progress goes to stderr; stdout has the JSON lines only. On a shared machine quote the
+ratios, not the absolute numbers, and mind the load (``load_avg_1m_at_start``): measured on
+2 cores, the baseline's large multi-threaded matmuls slowed down about 2x when another
+process took a core, ours (many small ops) barely, so contention raises the ratio (none:
+about 0.45 on a quiet machine, 0.7 when contended). ``taskset -c 0 python -m
+benchmarks.train_speed`` pins both to one core for a steadier comparison.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import statistics
+import sys
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+MODES = ("none", "shaped", "checker", "lagrangian")
+DEFAULTS = {
+    "env": "TwoRooms-v0",
+    "num_envs": 256,
+    "num_steps": 128,
+    "epochs": 4,
+    "minibatches": 8,
+    "timesteps": 2_000_000,
+    "repeats": 20,
+}
+
+
+def _log(*args) -> None:
+    print(*args, file=sys.stderr, flush=True)
+
+
+def device_description() -> str:
+    from benchmarks.purejaxrl_ppo import device_description as describe
+
+    return describe()
+
+
+def _timed(fn, *args):
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    return out, time.perf_counter() - t0
+
+
+def _median(xs):
+    return float(statistics.median(xs))
+
+
+# ----------------------------------------------------------------------------------------
+# Ours
+# ----------------------------------------------------------------------------------------
+def make_checker(env):
+    """A freshly initialised checker for ``env`` (the speed does not depend on its weights)."""
+    from checker.model import CheckerConfig
+    from checker.trained import new_checker
+
+    return new_checker(CheckerConfig(view_size=env.view_size), jax.random.PRNGKey(0))
+
+
+def make_config(mode: str, sizes: dict, updates: int):
+    from agents.ppo import PPOConfig
+
+    return PPOConfig(
+        env_id=sizes["env"],
+        reward_mode=mode,
+        num_envs=sizes["num_envs"],
+        num_steps=sizes["num_steps"],
+        update_epochs=sizes["epochs"],
+        num_minibatches=sizes["minibatches"],
+        # The LR schedule anneals over the timed updates; eval_every=1 allows tiny runs.
+        total_timesteps=updates * sizes["num_envs"] * sizes["num_steps"],
+        eval_every=1,
+    )
+
+
+class Ours:
+    """One reward mode: its learner, a runner state, and ``jit(scan of U updates)``."""
+
+    def __init__(self, mode: str, sizes: dict, updates: int, checker=None):
+        from agents.ppo import make_learner
+
+        self.mode, self.updates = mode, updates
+        self.config = make_config(mode, sizes, updates)
+        self.learner = make_learner(self.config, checker if self.config.uses_checker else None)
+        self.runner = jax.block_until_ready(jax.jit(self.learner.init)(jax.random.PRNGKey(0)))
+        learner = self.learner
+
+        def run(runner):
+            runner, metrics = lax.scan(lambda r, _: learner.update(r), runner, None, updates)
+            return runner, metrics["loss"][-1]
+
+        t0 = time.perf_counter()
+        self.compiled = jax.jit(run, donate_argnums=0).lower(self.runner).compile()
+        self.compile_s = time.perf_counter() - t0
+
+    def run(self) -> tuple[float, float]:
+        """Time one call of ``U`` updates; returns (env steps, seconds)."""
+        (self.runner, _), dt = _timed(self.compiled, self.runner)
+        return self.updates * self.config.batch_size, dt
+
+
+# ----------------------------------------------------------------------------------------
+# Baseline
+# ----------------------------------------------------------------------------------------
+class Baseline:
+    """PureJaxRL-style PPO on NAVIX DoorKey-8x8, ``U`` updates per call."""
+
+    def __init__(self, sizes: dict, updates: int):
+        from benchmarks import purejaxrl_ppo
+
+        batch = sizes["num_envs"] * sizes["num_steps"]
+        self.config = {
+            "TOTAL_TIMESTEPS": updates * batch,
+            "NUM_ENVS": sizes["num_envs"],
+            "NUM_STEPS": sizes["num_steps"],
+            "UPDATE_EPOCHS": sizes["epochs"],
+            "NUM_MINIBATCHES": sizes["minibatches"],
+        }
+        self.steps, self.calls = updates * batch, 0
+        train = purejaxrl_ppo.make_train(self.config)
+        key = jax.random.PRNGKey(0)
+        t0 = time.perf_counter()
+        self.compiled = jax.jit(train).lower(key).compile()
+        self.compile_s = time.perf_counter() - t0
+
+    def run(self) -> tuple[float, float]:
+        self.calls += 1
+        _, dt = _timed(self.compiled, jax.random.PRNGKey(self.calls))
+        return self.steps, dt
+
+
+# ----------------------------------------------------------------------------------------
+# Profile: where the time of one update goes
+# ----------------------------------------------------------------------------------------
+def _rollout_fn(learner):
+    c = learner.config
+
+    def rollout(runner):
+        params = runner.params
+        lang_table = learner._lang_table(params)
+        keys = jax.random.split(runner.key, c.num_steps)
+        env, (traj, _) = lax.scan(
+            lambda carry, k: learner._env_step(params, lang_table, carry, k), runner.env, keys
+        )
+        # Reduce every leaf, so that XLA keeps all of the rollout's work (none is dead).
+        return jax.tree.map(lambda x: x.astype(jnp.float32).sum(), (traj, env.obs))
+
+    return jax.jit(rollout)
+
+
+def _env_only_fn(env, num_envs: int, num_steps: int, num_actions: int, gymnax: bool = False):
+    """Bare env steps with random actions under ``vmap``, same horizon as one rollout."""
+
+    def run(key):
+        keys = jax.random.split(key, num_envs)
+        if gymnax:
+            _, states = jax.vmap(env.reset)(keys)
+        else:
+            states, _ = jax.vmap(env.reset)(keys)
+
+        def body(states, k):
+            actions = jax.random.randint(k, (num_envs,), 0, num_actions)
+            if gymnax:
+                obs, states, reward, done, _ = jax.vmap(env.step)(
+                    jax.random.split(k, num_envs), states, actions
+                )
+            else:
+                states, ts = jax.vmap(env.step)(states, actions)
+                obs, reward = ts.observation, ts.reward
+            # Use the observation too, or XLA would drop its computation.
+            used = sum(x.astype(jnp.float32).sum() for x in jax.tree.leaves(obs))
+            return states, reward.sum() + used
+
+        _, rewards = lax.scan(body, states, jax.random.split(key, num_steps))
+        return rewards.sum()
+
+    return jax.jit(run)
+
+
+def _loss_forward_fn(learner):
+    """The loss's forward pass over ``epochs x minibatches`` minibatches, without gradients.
+
+    Each step slices its own minibatch out of a full-size batch (built from the current
+    observations), so that XLA cannot hoist the network out of the loop.
+    """
+    c = learner.config
+    size = c.batch_size // c.num_minibatches
+
+    def run(runner):
+        obs, n = runner.env.obs, c.num_envs
+        tile = lambda x: jnp.tile(x, (c.num_steps,) + (1,) * (x.ndim - 1))  # noqa: E731
+        zeros = jnp.zeros((c.batch_size,), jnp.float32)
+        batch = {
+            "image": tile(obs["image"]), "direction": tile(obs["direction"]),
+            "sentence": tile(runner.env.sentence), "action": jnp.zeros_like(zeros, jnp.int32),
+            "log_prob": zeros, "value": zeros, "target": zeros, "cost_value": zeros,
+            "cost_target": zeros, "cost_advantage": zeros,
+            "advantage": jax.random.normal(runner.key, (c.batch_size,)),
+        }  # fmt: skip
+        assert batch["image"].shape[0] == c.batch_size == c.num_steps * n
+
+        def body(total, i):
+            start = (i % c.num_minibatches) * size
+            mb = jax.tree.map(lambda x: lax.dynamic_slice_in_dim(x, start, size), batch)
+            loss, _ = learner._loss(runner.params, mb, runner.lagrange)
+            return total + loss, None
+
+        steps = jnp.arange(c.update_epochs * c.num_minibatches)
+        return lax.scan(body, jnp.zeros(()), steps)[0]
+
+    return jax.jit(run)
+
+
+def _interleaved(pieces: dict, repeats: int) -> list[dict]:
+    """Warm each ``name: (fn, arg)`` up, then time them all in turn, ``repeats`` rounds."""
+    for fn, arg in pieces.values():
+        jax.block_until_ready(fn(arg))
+    return [
+        {name: _timed(fn, arg)[1] for name, (fn, arg) in pieces.items()} for _ in range(repeats)
+    ]
+
+
+def profile_ours(ours: Ours, repeats: int, cache: dict) -> dict:
+    """Seconds per update of the pieces of ``ours``'s update.
+
+    The pieces are timed in interleaved rounds and every figure, differences included, is a
+    median over rounds, so that a change of the machine's load hits all pieces alike. Uses
+    the learner's private pieces (``_env_step``, ``_loss``, ...): a profile, not an API.
+    """
+    from agents.ppo import make_learner
+    from jaxgrid.wrappers import AutoReset
+
+    learner, c = ours.learner, ours.config
+    runner = ours.runner
+    if "env" not in cache:
+        env = AutoReset(c.make_env())
+        fn = _env_only_fn(env, c.num_envs, c.num_steps, env.num_actions)
+        cache["env"] = (fn, jax.random.PRNGKey(1))
+        # The same rollout without any checker work (the none/shaped modes' rollout).
+        plain = make_learner(make_config("none", _sizes_of(c), ours.updates))
+        cache["plain"] = (_rollout_fn(plain), jax.jit(plain.init)(jax.random.PRNGKey(0)))
+    pieces = {
+        "update": (jax.jit(learner.update), runner),
+        "rollout": (_rollout_fn(learner), runner),
+        "plain": cache["plain"],
+        "env": cache["env"],
+        "forward": (_loss_forward_fn(learner), runner),
+    }
+    rounds = _interleaved(pieces, repeats)
+    derived = {
+        "update_s": lambda t: t["update"],
+        "rollout_s": lambda t: t["rollout"],
+        "optimisation_s": lambda t: t["update"] - t["rollout"],
+        "env_step_s": lambda t: t["env"],
+        "policy_and_bookkeeping_s": lambda t: (
+            (t["plain"] if c.uses_checker else t["rollout"]) - t["env"]
+        ),
+        "checker_s": lambda t: t["rollout"] - t["plain"] if c.uses_checker else 0.0,
+        "loss_forward_s": lambda t: t["forward"],
+        "backward_optimizer_gae_shuffle_s": lambda t: t["update"] - t["rollout"] - t["forward"],
+    }
+    out = {k: round(_median([f(t) for t in rounds]), 4) for k, f in derived.items()}
+    parts = list(derived)[3:]
+    out["fractions"] = {k[:-2]: round(out[k] / out["update_s"], 3) for k in parts}
+    return out
+
+
+def _sizes_of(c) -> dict:
+    return {
+        "env": c.env_id, "num_envs": c.num_envs, "num_steps": c.num_steps,
+        "epochs": c.update_epochs, "minibatches": c.num_minibatches,
+    }  # fmt: skip
+
+
+def profile_baseline(baseline: Baseline, sizes: dict, updates: int, repeats: int) -> dict:
+    from benchmarks import purejaxrl_ppo
+
+    env = purejaxrl_ppo.make_env()
+    fn = _env_only_fn(env, sizes["num_envs"], sizes["num_steps"], env.num_actions(), True)
+    pieces = {
+        "env": (fn, jax.random.PRNGKey(1)),
+        "train": (baseline.compiled, jax.random.PRNGKey(7)),
+    }
+    rounds = _interleaved(pieces, repeats)
+    update_s = _median([t["train"] for t in rounds]) / updates
+    env_s = _median([t["env"] for t in rounds])
+    return {
+        "update_s": round(update_s, 4),
+        "env_step_s": round(env_s, 4),
+        "env_fraction": round(_median([t["env"] * updates / t["train"] for t in rounds]), 3),
+    }
+
+
+# ----------------------------------------------------------------------------------------
+# CLI
+# ----------------------------------------------------------------------------------------
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.train_speed",
+        description="Env steps/s of the fused PPO per reward mode vs the PureJaxRL baseline.",
+    )
+    p.add_argument(
+        "--modes",
+        nargs="+",
+        default=list(MODES),
+        choices=MODES,
+        metavar="MODE",
+        help=f"reward modes to time (default: all of {', '.join(MODES)})",
+    )
+    p.add_argument("--env", default=DEFAULTS["env"], help="jaxgrid env id (default %(default)s)")
+    p.add_argument(
+        "--timesteps",
+        type=int,
+        default=DEFAULTS["timesteps"],
+        help="env steps timed per mode, over all repeats (default %(default)s)",
+    )
+    p.add_argument("--num-envs", type=int, default=DEFAULTS["num_envs"])
+    p.add_argument("--num-steps", type=int, default=DEFAULTS["num_steps"])
+    p.add_argument("--epochs", type=int, default=DEFAULTS["epochs"])
+    p.add_argument("--minibatches", type=int, default=DEFAULTS["minibatches"])
+    p.add_argument(
+        "--repeats",
+        type=int,
+        default=DEFAULTS["repeats"],
+        help="timed calls per mode; sps and ratio are medians (default %(default)s)",
+    )
+    p.add_argument(
+        "--baseline",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also time the PureJaxRL baseline (needs navix; default on)",
+    )
+    p.add_argument(
+        "--profile", action="store_true", help="add a per-update time breakdown to each line"
+    )
+    p.add_argument("--out", default=None, help="also write the JSON lines to this file")
+    return p  # fmt: skip
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = _parser()
+    args = p.parse_args(argv)
+    for name in ("timesteps", "num_envs", "num_steps", "epochs", "minibatches", "repeats"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.num_envs % args.minibatches:
+        p.error(f"--minibatches ({args.minibatches}) must divide --num-envs ({args.num_envs})")
+    import jaxgrid
+
+    try:
+        jaxgrid.make(args.env)
+    except ValueError as e:
+        p.error(f"--env: {e}")
+    if args.baseline and importlib.util.find_spec("navix") is None:
+        p.error("--baseline needs navix (pip install -e '.[bench]'); or pass --no-baseline")
+    args.modes = list(dict.fromkeys(args.modes))
+    return args
+
+
+def main(argv=None) -> list[dict[str, Any]]:
+    args = parse_args(argv)
+    sizes = {
+        "env": args.env, "num_envs": args.num_envs, "num_steps": args.num_steps,
+        "epochs": args.epochs, "minibatches": args.minibatches,
+    }  # fmt: skip
+    batch = args.num_envs * args.num_steps
+    updates = max(1, args.timesteps // batch // args.repeats)
+    timed = updates * batch * args.repeats
+    device = device_description()
+    load = round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None
+    _log(
+        f"train_speed: {args.env}, {args.num_envs} envs x {args.num_steps} steps, "
+        f"{args.epochs} epochs x {args.minibatches} minibatches; {args.repeats} repeats x "
+        f"{updates} updates = {timed} steps per mode; {device}"
+    )
+
+    checker = None
+    if any(m in ("checker", "lagrangian") for m in args.modes):
+        import jaxgrid
+
+        checker = make_checker(jaxgrid.make(args.env))
+
+    baseline = None
+    if args.baseline:
+        _log("compiling baseline (purejaxrl-navix) ...")
+        baseline = Baseline(sizes, updates)
+        _log(f"  baseline compile {baseline.compile_s:.1f}s")
+    learners = {}
+    for mode in args.modes:
+        _log(f"compiling mode {mode} ...")
+        learners[mode] = Ours(mode, sizes, updates, checker)
+        _log(f"  {mode} compile {learners[mode].compile_s:.1f}s")
+
+    contenders = ([("baseline", baseline)] if baseline is not None else []) + list(learners.items())
+    runs = {name: [] for name, _ in contenders}  # (env steps, seconds) per call
+    for r in range(args.repeats):
+        for name, bench in contenders:
+            runs[name].append(bench.run())
+        last = ", ".join(f"{name} {v[-1][0] / v[-1][1]:,.0f}" for name, v in runs.items())
+        _log(f"repeat {r + 1}/{args.repeats}: {last} sps")
+    sps = {name: [n / dt for n, dt in v] for name, v in runs.items()}
+    overall = {name: sum(n for n, _ in v) / sum(dt for _, dt in v) for name, v in runs.items()}
+    base_sps = sps.get("baseline", [])
+
+    cache, base_profile = {}, None
+    profile_repeats = min(args.repeats, 5)
+    if args.profile and baseline is not None:
+        _log("profiling baseline ...")
+        base_profile = profile_baseline(baseline, sizes, updates, profile_repeats)
+
+    lines = []
+    for mode, ours in learners.items():
+        line = {
+            "mode": mode,
+            "sps": round(_median(sps[mode]), 1),
+            "compile_s": round(ours.compile_s, 2),
+            "device": device,
+            "env": args.env,
+            "num_envs": args.num_envs,
+            "num_steps": args.num_steps,
+            "epochs": args.epochs,
+            "minibatches": args.minibatches,
+            "timesteps": timed,
+            "repeats": args.repeats,
+            "updates_per_call": updates,
+            "sps_overall": round(overall[mode], 1),
+            "sps_all": [round(s, 1) for s in sps[mode]],
+            "load_avg_1m_at_start": load,
+        }
+        if baseline is not None:
+            ratios = [s / b for s, b in zip(sps[mode], base_sps, strict=True)]
+            line.update(
+                baseline="purejaxrl-navix (Navix-DoorKey-8x8-v0)",
+                baseline_sps=round(_median(base_sps), 1),
+                baseline_sps_overall=round(overall["baseline"], 1),
+                baseline_compile_s=round(baseline.compile_s, 2),
+                baseline_sps_all=[round(s, 1) for s in base_sps],
+                ratio=round(_median(ratios), 3),
+                ratio_all=[round(x, 3) for x in ratios],
+            )
+        if args.profile:
+            _log(f"profiling mode {mode} ...")
+            try:
+                line["breakdown"] = profile_ours(ours, profile_repeats, cache)
+            except Exception as e:  # noqa: BLE001 - the learner's internals may have moved
+                line["breakdown"] = {"error": f"{type(e).__name__}: {e}"}
+            if base_profile is not None:
+                line["baseline_breakdown"] = base_profile
+        lines.append(line)
+        print(json.dumps(line), flush=True)
+
+    if args.out:
+        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+        with open(args.out, "w") as f:
+            for line in lines:
+                f.write(json.dumps(line) + "\n")
+        _log(f"wrote {args.out}")
+    return lines
+
+
+if __name__ == "__main__":
+    main()

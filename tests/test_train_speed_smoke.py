@@ -1,0 +1,75 @@
+"""Smoke test of ``python -m benchmarks.train_speed`` at a tiny size (no baseline).
+
+The default test compiles the fused update twice (modes none and checker, 4 envs x 8 steps):
+about 25 s on 2 idle cores, up to 40 s when they are shared. The slow-marked test adds the
+baseline and ``--profile``.
+"""
+
+import json
+import math
+
+import pytest
+
+from benchmarks import train_speed
+
+TINY = [
+    "--modes", "none", "checker",
+    "--num-envs", "4", "--num-steps", "8", "--epochs", "1", "--minibatches", "2",
+    "--timesteps", "64", "--repeats", "2", "--no-baseline",
+]  # fmt: skip
+
+
+def test_tiny_run_prints_one_json_line_per_mode(tmp_path, capsys):
+    out = tmp_path / "results" / "speed.json"
+    lines = train_speed.main(TINY + ["--out", str(out)])
+    captured = capsys.readouterr()
+    printed = [json.loads(s) for s in captured.out.splitlines()]
+    assert printed == lines
+    assert [json.loads(s) for s in out.read_text().splitlines()] == lines
+    assert [line["mode"] for line in lines] == ["none", "checker"]
+    for line in lines:
+        assert {"mode", "sps", "compile_s", "device"} <= set(line)
+        assert math.isfinite(line["sps"]) and line["sps"] > 0
+        assert math.isfinite(line["compile_s"]) and line["compile_s"] > 0
+        assert isinstance(line["device"], str) and line["device"]
+        assert (line["num_envs"], line["num_steps"], line["epochs"], line["minibatches"]) == (
+            4, 8, 1, 2,
+        )  # fmt: skip
+        # 64 steps over 2 repeats of whole 32-step updates.
+        assert line["timesteps"] == 64 and line["updates_per_call"] == 1
+        assert len(line["sps_all"]) == 2
+        assert "baseline_sps" not in line and "ratio" not in line
+    assert "train_speed:" in captured.err  # progress goes to stderr
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--modes", "bogus"],
+        ["--num-envs", "0"],
+        ["--num-envs", "6", "--minibatches", "4"],
+        ["--repeats", "-1"],
+        ["--timesteps", "many"],
+        ["--env", "NoSuchEnv-v0"],
+    ],
+)
+def test_bad_flags_exit_with_usage(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        train_speed.main(argv)
+    assert exc.value.code != 0
+    assert "usage:" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # baseline + profile compiles: 1-2 minutes on 2 shared cores
+def test_tiny_run_with_baseline_and_profile():
+    pytest.importorskip("navix")
+    argv = ["--modes", "checker", "--profile"] + TINY[3:-1]  # sizes of TINY, baseline on
+    (line,) = train_speed.main(argv)
+    assert line["mode"] == "checker"
+    assert line["baseline_sps"] > 0 and line["ratio"] > 0 and len(line["ratio_all"]) == 2
+    parts = line["breakdown"]
+    assert "error" not in parts, parts
+    for key in ("update_s", "rollout_s", "env_step_s", "loss_forward_s"):
+        assert math.isfinite(parts[key]) and parts[key] > 0
+    assert math.isfinite(parts["checker_s"])  # a difference of two timings: may be < 0
+    assert line["baseline_breakdown"]["env_step_s"] > 0
