@@ -655,3 +655,16 @@ def test_multi_device_run_matches_single_device(multi_device_process, uninterrup
     for k, v in uninterrupted["eval"].items():
         np.testing.assert_allclose(result["eval"][k], v, atol=1e-5, err_msg=k)
     np.testing.assert_array_equal(result["train_violations"], uninterrupted["train_violations"])
+
+
+@pytest.mark.parametrize("shape", [(4, 5, 5, 8), (2, 7, 6, 3)])
+def test_patch_conv_equals_flax_conv(shape):
+    import flax.linen as nn
+
+    from agents.networks import PatchConv
+
+    x = jax.random.normal(jax.random.PRNGKey(0), shape)
+    params = PatchConv(16).init(jax.random.PRNGKey(1), x)
+    ours = PatchConv(16).apply(params, x)
+    ref = nn.Conv(16, (3, 3), padding="VALID").apply(params, x)
+    np.testing.assert_allclose(ours, ref, rtol=1e-5, atol=1e-5)

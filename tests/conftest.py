@@ -1,0 +1,12 @@
+"""Session-wide test settings.
+
+The suite is dominated by XLA compile time on 2 CPU cores, not by running the (tiny)
+programs, so tests compile with LLVM's optimisations off: same semantics, about half the
+compile time. Set before any JAX backend starts; a user's own XLA_FLAGS are kept.
+"""
+
+import os
+
+_FAST = "--xla_backend_optimization_level=0"
+if _FAST not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FAST).strip()
