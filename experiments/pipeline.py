@@ -214,6 +214,10 @@ def default_out(experiment: str) -> str:
 def main(defaults: ExperimentConfig, argv=None) -> dict | None:
     """Entry point of the scenario modules; Ctrl-C keeps finished phases for a resume."""
     cfg = parse_args(sys.argv[1:] if argv is None else argv, defaults)
+    if cfg.quick:  # a smoke test is all compile time: skip LLVM's optimisations (same results)
+        flag = "--xla_backend_optimization_level=0"
+        if flag not in os.environ.get("XLA_FLAGS", ""):  # read when the CPU backend starts
+            os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip()
     if cfg.out is None:
         cfg = dataclasses.replace(cfg, out=default_out(cfg.experiment))
     try:
