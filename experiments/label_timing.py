@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.phases import write_json
 from experiments.pipeline import ExperimentConfig, default_out, parse_args, run_experiment
 from experiments.report import mean_ci
 
@@ -53,8 +54,6 @@ def main(argv=None) -> dict:
         "final violation % | final success % | final reward |",
         "|---|---|---|---|---|---|",
     ] + [_row(LABELS[k], r) for k, r in results.items()]
-    from experiments.pipeline import write_json
-
     summary = {
         str(k): {"checker": r["checker"], "checker_mode": r["methods"]["checker"]}
         for k, r in results.items()

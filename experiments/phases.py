@@ -11,7 +11,6 @@ import dataclasses
 import json
 import os
 from pathlib import Path
-from typing import Any
 
 import jax
 import numpy as np
@@ -30,6 +29,11 @@ def _json(path: Path, obj=None):
     """Read ``path`` (``obj`` None) or write ``obj`` there atomically."""
     if obj is None:
         return json.loads(path.read_text())
+    return write_json(path, obj)
+
+
+def write_json(path: Path, obj):
+    """Atomic JSON write (a reader never sees half a file); numpy values become lists."""
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(obj, indent=2, default=_plain) + "\n")
     os.replace(tmp, path)
@@ -323,6 +327,6 @@ def write_outputs(cfg, out: Path, results: dict, runs: dict) -> list[Path]:
     return [p for p in paths if Path(p).exists()]
 
 
-__all__: list[Any] = ["prepare_out", "ppo_config", "behaviour_agent", "checker_data",
+__all__: list[str] = ["prepare_out", "write_json", "ppo_config", "behaviour_agent", "checker_data",
                       "train_checker", "reuse_checker", "train_agents", "write_gif",
                       "assemble", "write_outputs"]  # fmt: skip

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import json
 import os
 import sys
 import time
@@ -231,10 +230,3 @@ def main(defaults: ExperimentConfig, argv=None) -> dict | None:
         print(f"\ninterrupted: finished phases are kept in {cfg.out}; rerun with "
               f"--out {cfg.out} to resume", file=sys.stderr)  # fmt: skip
         raise SystemExit(130) from None
-
-
-def write_json(path: Path, obj) -> None:
-    """Atomic JSON write (a reader never sees half a file)."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2) + "\n")
-    os.replace(tmp, path)
