@@ -130,11 +130,19 @@ def behaviour_agent(cfg, out: Path):
 # b. checker data, c. checker
 # ----------------------------------------------------------------------------------------
 def _collect(cfg, env_id: str, behaviour, key, samples: int, split: str = "train"):
-    policy, params = behaviour
-    if env_id != policy.config.env_id:  # another scenario: the agent was not trained there
+    """Windows of ``behaviour`` (``(AgentPolicy, params)``) on ``env_id``; the noisy oracle
+    plays instead when there is no agent or it was trained on another scenario."""
+    if behaviour is None or env_id != behaviour[0].config.env_id:
         policy, params = chk.noisy_oracle_policy, chk.NoisyOracleParams(salt=cfg.seed)
+    else:
+        policy, params = behaviour
     return chk.collect(jaxgrid.make(env_id, split=split), policy, params, key, samples,
                        cfg.window, cfg.lookahead, env_id=env_id)  # fmt: skip
+
+
+def _small_samples(cfg) -> int:
+    """Windows of the held-out and transfer sets."""
+    return max(64, cfg.checker_samples // HELDOUT_FRACTION)
 
 
 def checker_data(cfg, out: Path, behaviour):
@@ -172,8 +180,7 @@ def train_checker(cfg, out: Path, data, behaviour):
     trained = dataclasses.replace(trained, env_id=cfg.checker_env_id)
     chk.save(trained, ckpt)
     key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 2)
-    small = max(64, cfg.checker_samples // HELDOUT_FRACTION)
-    held = _collect(cfg, cfg.checker_env_id, behaviour, key, small, split="heldout")
+    held = _collect(cfg, cfg.checker_env_id, behaviour, key, _small_samples(cfg), "heldout")
     details = {"test": chk.evaluate(trained, test), "heldout": chk.evaluate(trained, held)}
     report = _checker_report(details, history)
     report["transfer"] = _transfer(cfg, trained, report)
@@ -198,11 +205,8 @@ def _transfer(cfg, trained, report: dict) -> dict | None:
     if cfg.env_id == trained.env_id or not trained.env_id:
         return report.get("transfer")
     key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 3)
-    small = max(64, cfg.checker_samples // HELDOUT_FRACTION)
     # The behaviour agent knows another scenario: the noisy oracle plays this one.
-    data = chk.collect(jaxgrid.make(cfg.env_id), chk.noisy_oracle_policy,
-                       chk.NoisyOracleParams(salt=cfg.seed), key, small, cfg.window,
-                       cfg.lookahead, env_id=cfg.env_id)  # fmt: skip
+    data = _collect(cfg, cfg.env_id, None, key, _small_samples(cfg))
     metrics = chk.evaluate(trained, data)
     report.setdefault("details", {})[f"transfer_{cfg.env_id}"] = metrics
     print(f"c. checker ({trained.env_id}) on {cfg.env_id}: AUROC {metrics['auroc']}")
@@ -256,8 +260,8 @@ def write_gif(cfg, out: Path, runs: dict, trained) -> Path | None:
     from jaxgrid.video import record_episodes
 
     mode = "checker" if "checker" in runs else next(iter(runs))
-    learner = make_learner(runs[mode]["config"], trained if mode in ("checker", "lagrangian")
-                           else None)  # fmt: skip
+    config = runs[mode]["config"]
+    learner = make_learner(config, trained if config.uses_checker else None)
     params = jax.tree.map(lambda x: x[0], runs[mode]["params"])
     act = jax.jit(lambda obs, key: learner.act(params, jax.tree.map(lambda x: x[None], obs),
                                                key)[0])  # fmt: skip
