@@ -15,7 +15,7 @@ constraint's sentence, mean a violation is about to happen?
 ``checker`` imports ``jaxgrid`` only (never ``agents`` or ``experiments``).
 """
 
-from checker.data import CheckerDataset, collect, collect_episodes
+from checker.data import CheckerDataset, collect, collect_episodes, with_colour_counterfactuals
 from checker.metrics import (
     auroc,
     binary_metrics,
@@ -55,6 +55,7 @@ __all__ = [
     "random_policy",
     "save",
     "violation_prob",
+    "with_colour_counterfactuals",
 ]
 
 

@@ -76,7 +76,14 @@ from checker.trained import check_vocab
 from jaxgrid import language
 from jaxgrid.wrappers import AutoReset
 
-__all__ = ["CheckerDataset", "collect", "collect_episodes", "compute_labels", "validate_window"]
+__all__ = [
+    "CheckerDataset",
+    "collect",
+    "collect_episodes",
+    "compute_labels",
+    "validate_window",
+    "with_colour_counterfactuals",
+]
 
 FORMAT_VERSION = 1
 MAX_WINDOW = 64
@@ -610,3 +617,76 @@ def collect_episodes(
         num_steps=num_steps,
         env_id=env_id,
     )
+
+
+# --------------------------------------------------------------------------------------
+# Counterfactual negatives
+# --------------------------------------------------------------------------------------
+
+
+def with_colour_counterfactuals(
+    dataset: CheckerDataset, per_positive: int = 1, seed: int = 0
+) -> CheckerDataset:
+    """``dataset`` plus, for each door-only positive, ``per_positive`` recoloured negatives.
+
+    A positive window of a door-only constraint ("do not use the red door") precedes the
+    agent entering a door of the named colour. The same window under the same template naming
+    another door colour precedes no violation: the monitor, relabelling the window for that
+    sentence, says 0 (within a lookahead of 0 or 1 steps the agent enters at most one door).
+    Rollout data rarely holds such windows otherwise (the behaviour agent seldom walks
+    through a permitted door while its window looks like a forbidden one), and without them
+    a checker was measured to ignore the sentence: colour-counterfactual AUROC 0.53 on
+    TwoRooms, alarms in front of every door, and PPO agents that stopped using doors.
+
+    The new colour is drawn among the (template, colour) combinations of the dataset's
+    language split (``meta["split"]``), so the held-out combinations stay unseen. Rows are
+    appended in a seeded random order; ``meta["counterfactual_negatives"]`` counts them.
+    Raises ``ValueError`` for ``per_positive < 0`` or a lookahead above 1, where the
+    relabelling would not be exact.
+    """
+    if not isinstance(per_positive, int | np.integer) or per_positive < 0:
+        raise ValueError(f"per_positive must be an int >= 0, got {per_positive!r}")
+    lookahead = dataset.meta.get("lookahead", 1)
+    if lookahead > 1:
+        raise ValueError(
+            f"colour counterfactuals need lookahead 0 or 1 (exact relabelling), got {lookahead}"
+        )
+    split = dataset.meta.get("split") or "all"
+    combos = language.split_combinations(split)
+    by_template: dict[int, list[str]] = {}
+    for t, c in combos:
+        by_template.setdefault(t, []).append(c)
+    colour_ids = {language.VOCAB.index(c): c for c in language.COLOURS}
+    rng = np.random.default_rng(seed)
+    rows, tokens = [], []
+    for r in np.flatnonzero(dataset.labels > 0):
+        t = int(dataset.template_id[r])
+        if t < 0 or language.TEMPLATES[t].has_lava:
+            continue
+        named = [colour_ids[i] for i in dataset.tokens[r] if i in colour_ids]
+        others = [c for c in by_template.get(t, []) if c not in named]
+        if len(named) != 1 or not others:
+            continue
+        for c in rng.choice(others, size=min(per_positive, len(others)), replace=False):
+            rows.append(r)
+            tokens.append(language.tokenize(language.render(t, str(c))))
+    if not rows:
+        return dataset
+    rows = np.asarray(rows)
+    extra = dataset.subset(rows)
+    extra.tokens = np.stack(tokens).astype(dataset.tokens.dtype)
+    extra.labels = np.zeros_like(extra.labels)
+    order = rng.permutation(len(dataset) + len(rows))
+    merged = {
+        name: np.concatenate([getattr(dataset, name), getattr(extra, name)])[order]
+        for name in _CORE
+    }
+    extras = {k: np.concatenate([v, extra.extras[k]])[order] for k, v in dataset.extras.items()}
+    out = CheckerDataset(**merged, extras=extras, meta=dict(dataset.meta))
+    out.meta.update(
+        num_samples=len(out),
+        num_positive=int(np.sum(out.labels)),
+        positive_fraction=out.positive_fraction,
+        counterfactual_negatives=len(rows) + int(dataset.meta.get("counterfactual_negatives", 0)),
+    )
+    return out

@@ -31,13 +31,20 @@ import json
 import os
 import sys
 import time
+import warnings
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 
-from checker.data import CheckerDataset, collect, collect_episodes, validate_window
+from checker.data import (
+    CheckerDataset,
+    collect,
+    collect_episodes,
+    validate_window,
+    with_colour_counterfactuals,
+)
 from checker.model import Checker, CheckerConfig, init_params
 from checker.trained import TrainedChecker, save
 
@@ -135,6 +142,7 @@ def train_checker(
     patience: int = 8,
     val_dataset: CheckerDataset | None = None,
     threshold: float = 0.5,
+    counterfactuals: int = 1,
     progress: bool = True,
 ) -> tuple[TrainedChecker, dict]:
     """Train a checker on ``dataset``; returns ``(TrainedChecker, history)``.
@@ -150,6 +158,10 @@ def train_checker(
             ``val_dataset`` is given; 0 disables early stopping (the last epoch is kept).
         patience: stop after this many epochs without a lower validation loss.
         threshold: decision threshold stored in the returned checker.
+        counterfactuals: recoloured negatives added per door-only positive to the training
+            and validation parts (:func:`checker.data.with_colour_counterfactuals`), so the
+            checker must read the sentence's colour; 0 trains on the rollout windows only.
+            Skipped (with a warning) for lookaheads above 1, where it would not be exact.
         progress: show a tqdm progress bar.
 
     ``history`` holds per-epoch ``train_loss``, ``val_loss``, ``val_accuracy``, the
@@ -173,6 +185,11 @@ def train_checker(
         ("val_fraction", val_fraction, 0 <= val_fraction < 1),
         ("patience", patience, isinstance(patience, int) and patience >= 1),
         ("threshold", threshold, 0 < threshold < 1),
+        (
+            "counterfactuals",
+            counterfactuals,
+            isinstance(counterfactuals, int) and counterfactuals >= 0,
+        ),  # noqa: E501
     ):
         if not ok:
             raise ValueError(f"train_checker: invalid {name}={value!r}")
@@ -182,6 +199,16 @@ def train_checker(
         train_ds, val_ds = dataset.split((1 - val_fraction, val_fraction), seed=seed)
     else:
         train_ds, val_ds = dataset, val_dataset
+    if counterfactuals and dataset.meta.get("lookahead", 1) > 1:
+        warnings.warn(
+            f"train_checker: no colour counterfactuals for lookahead "
+            f"{dataset.meta['lookahead']} > 1 (the relabelling would not be exact)",
+            stacklevel=2,
+        )
+    elif counterfactuals:
+        train_ds = with_colour_counterfactuals(train_ds, counterfactuals, seed=seed)
+        if val_ds is not None:
+            val_ds = with_colour_counterfactuals(val_ds, counterfactuals, seed=seed + 1)
     if len(train_ds) < batch_size:
         raise ValueError(
             f"train_checker: {len(train_ds)} training rows, fewer than batch_size={batch_size}"

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections import Counter
 
 import jax
 import jax.numpy as jnp
@@ -482,6 +483,44 @@ def test_colour_counterfactual_on_toy(toy, trained_toy):
     cf = checker.colour_counterfactual(trained_toy[0], test)
     assert cf["n"] == int(test.labels.sum())
     assert cf["auroc"] > 0.9 and cf["mean_prob"] > cf["mean_prob_counterfactual"]
+
+
+def test_colour_counterfactuals_relabel_door_positives(toy):
+    """Each door-only positive gains one recoloured copy labelled 0, never a held-out phrase."""
+    train, _ = toy
+    train = train.subset(np.arange(len(train)))
+    train.meta["split"] = "train"
+    out = checker.with_colour_counterfactuals(train, per_positive=1, seed=3)
+    lava_free = np.array([not t.has_lava for t in language.TEMPLATES])
+    door_pos = int(np.sum((train.labels > 0) & lava_free[train.template_id]))
+    assert door_pos > 0 and len(out) == len(train) + door_pos
+    assert out.meta["counterfactual_negatives"] == door_pos
+    assert int(out.labels.sum()) == int(train.labels.sum())
+
+    # The original rows are all still there; each new row is a positive's window with a
+    # sentence naming another colour than the door the toy's label looks at: a true negative.
+    def as_rows(ds):
+        return Counter(zip(map(bytes, ds.windows), map(bytes, ds.tokens), ds.labels, strict=True))
+
+    rows = as_rows(out)
+    rows.subtract(as_rows(train))
+    assert all(n >= 0 for n in rows.values()) and sum(rows.values()) == door_pos
+    positive_windows = {bytes(w) for w, lab in zip(train.windows, train.labels, strict=True) if lab}
+    colour_of = {i: language.COLOURS[i] for i in range(len(language.COLOURS))}
+    for (w, t, lab), n in rows.items():
+        if n == 0:
+            continue
+        window = np.frombuffer(w, np.uint8).reshape(train.windows.shape[1:])
+        c = language.parse(language.detokenize(np.frombuffer(t, np.int32)))
+        assert lab == 0 and w in positive_windows
+        assert c.colour != colour_of[int(window[-1, 2, 3, 1])]
+        assert not language._is_heldout(c.template_id, c.colour)
+    bad = train.subset(np.arange(len(train)))
+    bad.meta["lookahead"] = 2
+    with pytest.raises(ValueError, match="lookahead"):
+        checker.with_colour_counterfactuals(bad)
+    with pytest.raises(ValueError, match="per_positive"):
+        checker.with_colour_counterfactuals(train, per_positive=-1)
 
 
 @pytest.mark.slow
