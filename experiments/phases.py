@@ -90,7 +90,7 @@ def ppo_config(cfg, mode: str, *, env_id: str | None = None, steps: int | None =
         return PPOConfig(
             env_id=env_id or cfg.env_id, reward_mode=mode, total_timesteps=max(steps, batch),
             num_envs=cfg.num_envs, num_steps=cfg.num_steps,
-            num_minibatches=cfg.num_minibatches, update_epochs=cfg.update_epochs,
+            num_minibatches=cfg.num_minibatches, update_epochs=cfg.update_epochs, lr=cfg.lr,
             penalty=cfg.penalty, penalty_start=cfg.penalty_start,
             penalty_warmup=cfg.penalty_warmup,
             eval_every=max(1, updates // cfg.curve_points),

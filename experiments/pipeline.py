@@ -56,8 +56,9 @@ class ExperimentConfig:
     num_steps: int = 64
     num_minibatches: int = 4
     update_epochs: int = 4
+    lr: float = 1e-3  # PPO's Adam step size (see PPOConfig.lr)
     penalty: float = 1.0
-    penalty_start: float = 0.4  # no penalty for this fraction of training (see PPOConfig)
+    penalty_start: float = 0.2  # no penalty for this fraction of training (see PPOConfig)
     penalty_warmup: float = 0.1  # then a linear ramp over this fraction
     curve_points: int | None = None
     eval_episodes: int | None = None
@@ -94,6 +95,8 @@ class ExperimentConfig:
                                  f"got {value!r}")  # fmt: skip
         if self.gif_episodes < 0:
             raise ValueError(f"--gif-episodes must be >= 0, got {self.gif_episodes}")
+        if not self.lr > 0:
+            raise ValueError(f"--lr must be > 0, got {self.lr}")
         if self.penalty < 0:
             raise ValueError(f"--penalty must be >= 0, got {self.penalty}")
         for name in ("penalty_start", "penalty_warmup"):

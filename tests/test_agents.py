@@ -44,7 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # 8 envs x 8 steps, 4 updates in 2 chunks of 2, one epoch of 2 minibatches.
 TINY = PPOConfig(
     num_envs=8, num_steps=8, total_timesteps=8 * 8 * 4, update_epochs=1, num_minibatches=2,
-    eval_every=2, eval_episodes=4,
+    eval_every=2, eval_episodes=4, penalty_start=0.0, penalty_warmup=0.0,
 )  # fmt: skip
 # A small checker (window of 3 frames) with the scenarios' 5x5 view.
 CHECKER_CONFIG = CheckerConfig(
@@ -243,15 +243,37 @@ def test_lagrange_multiplier_rises_with_cost(lagrangian_train):
     out, _ = lagrangian_train
     t = out["train"]
     cost = t["cost_rate"].reshape(2, -1)
+    episode_cost = t["episode_cost"].reshape(2, -1)
     lam = t["lagrange"].reshape(2, -1)
-    # Threshold 0: every step raises an alarm, so the cost rate is 1 > cost_target.
+    # Threshold 0: every step raises an alarm, so the cost rate is 1 and the cost per finished
+    # episode is the rollout's steps over its episodes, far above cost_target.
     np.testing.assert_allclose(cost, 1.0)
+    episodes = t["episodes"].reshape(2, -1)
+    np.testing.assert_allclose(
+        episode_cost, LAGRANGIAN.batch_size / np.maximum(episodes, 1), rtol=1e-6
+    )
     prev = np.concatenate([np.full((2, 1), LAGRANGIAN.lagrangian_init), lam[:, :-1]], axis=1)
-    expected = np.maximum(0.0, prev + LAGRANGIAN.lagrangian_lr * (cost - LAGRANGIAN.cost_target))
+    step = LAGRANGIAN.lagrangian_lr * (episode_cost - LAGRANGIAN.cost_target)
+    expected = np.maximum(0.0, prev + step)
     np.testing.assert_allclose(lam, expected, rtol=1e-6)
     assert np.all(np.diff(lam, axis=1) > 0) and np.all(lam[:, 0] > 0)
     assert np.all(t["alarms"] == LAGRANGIAN.batch_size)
     assert np.all(np.asarray(out["runner"].lagrange) == lam[:, -1])
+
+
+def test_lagrange_multiplier_waits_for_penalty_start(tiny_checker):
+    """Before ``penalty_start`` the multiplier stays at ``lagrangian_init``; then it moves."""
+    config = dataclasses.replace(LAGRANGIAN, penalty_start=0.5)
+    learner = make_learner(config, tiny_checker)
+    runner = learner.init(jax.random.PRNGKey(0))
+    update = jax.jit(learner.update)
+    lams = []
+    for _ in range(config.num_updates):
+        runner, m = update(runner)
+        lams.append(float(m["lagrange"]))
+    half = config.num_updates // 2
+    assert all(lam == config.lagrangian_init for lam in lams[:half])
+    assert lams[-1] > config.lagrangian_init
 
 
 # ------------------------------------------------------------------------------ 4. GAE
@@ -523,7 +545,7 @@ def test_checkpoint_resume_is_bit_identical(tmp_path, uninterrupted):
     with pytest.raises(ValueError, match="seeds"):
         run(TINY, seeds=(0, 2), out_dir=tmp_path, progress=False)
     with pytest.raises(ValueError, match="lr"):
-        run(dataclasses.replace(TINY, lr=1e-3), seeds=SEEDS, out_dir=tmp_path, progress=False)
+        run(dataclasses.replace(TINY, lr=5e-4), seeds=SEEDS, out_dir=tmp_path, progress=False)
     # ... and resume=False really starts over (old checkpoints are not resumed later).
     fresh = run(TINY, seeds=(3, 4), out_dir=tmp_path, progress=False, resume=False, max_chunks=1)
     assert not fresh["complete"]
