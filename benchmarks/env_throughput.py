@@ -101,8 +101,7 @@ def _make_jaxgrid() -> Adapter:
         observation=lambda s: s[1].observation["image"],
         notes={
             "observation": "MiniGrid egocentric 7x7x3 uint8 image (with occlusion)",
-            "auto_reset": "jaxgrid.wrappers.AutoReset (same-step reset, selected with "
-            "jnp.where)",
+            "auto_reset": "jaxgrid.wrappers.AutoReset (same-step reset, selected with jnp.where)",
             "actions": "uniform over the 7 MiniGrid actions",
         },
     )
@@ -219,7 +218,7 @@ def batched_reset(lib: str, key: jax.Array, num_envs: int) -> Any:
     vreset = _jit_vreset(lib)
     chunks = -(-num_envs // RESET_CHUNK)
     keys = jax.random.split(key, chunks * RESET_CHUNK)
-    parts = [vreset(keys[i * RESET_CHUNK:(i + 1) * RESET_CHUNK]) for i in range(chunks)]
+    parts = [vreset(keys[i * RESET_CHUNK : (i + 1) * RESET_CHUNK]) for i in range(chunks)]
     if chunks == 1:
         return jax.tree.map(lambda x: x[:num_envs], parts[0])
     return jax.tree.map(lambda *xs: jnp.concatenate(xs)[:num_envs], *parts)
@@ -331,8 +330,12 @@ def default_steps(num_envs: int) -> int:
     return max(16, budget // num_envs)
 
 
-_IMPORT_NAMES = {"jaxgrid": "jaxgrid", "navix": "navix", "xminigrid": "xminigrid",
-                 "minigrid": "minigrid"}
+_IMPORT_NAMES = {
+    "jaxgrid": "jaxgrid",
+    "navix": "navix",
+    "xminigrid": "xminigrid",
+    "minigrid": "minigrid",
+}
 
 
 def _version(dist: str) -> str | None:
@@ -404,13 +407,17 @@ def ratios(results: list[dict], num_envs: list[int]) -> dict[int, dict]:
     return out
 
 
-def format_table(results: list[dict], skipped: dict[str, str], num_envs: list[int],
-                 libs: list[str]) -> str:
+def format_table(
+    results: list[dict], skipped: dict[str, str], num_envs: list[int], libs: list[str]
+) -> str:
     """Readable table: rows = lib, columns = num envs (steps/s best-of, compile s)."""
     by = {(r["lib"], r["num_envs"]): r for r in results}
     head = f"{'lib':<10}" + "".join(f"{f'N={n} steps/s':>18}{'compile s':>11}" for n in num_envs)
-    lines = ["env steps/s (best of repeats) on MiniGrid-DoorKey-8x8, random actions, "
-             "auto-reset", head, "-" * len(head)]
+    lines = [
+        "env steps/s (best of repeats) on MiniGrid-DoorKey-8x8, random actions, auto-reset",
+        head,
+        "-" * len(head),
+    ]
     for lib in libs:
         if lib in skipped:
             lines.append(f"{lib:<10}  skipped: {skipped[lib]}")
@@ -425,13 +432,22 @@ def format_table(results: list[dict], skipped: dict[str, str], num_envs: list[in
     rat = ratios(results, num_envs)
     if rat:
         lines.append("")
-        lines.append("jaxgrid / faster of navix, xminigrid: " + ", ".join(
-            f"N={n}: {v['ratio']:.2f}x (vs {v['vs']})" for n, v in rat.items()))
+        lines.append(
+            "jaxgrid / faster of navix, xminigrid: "
+            + ", ".join(f"N={n}: {v['ratio']:.2f}x (vs {v['vs']})" for n, v in rat.items())
+        )
     return "\n".join(lines)
 
 
-def run(libs: list[str], num_envs: list[int], steps: int | None, repeats: int,
-        python_steps: int, seed: int = 0, log: Callable[[str], None] = print) -> dict:
+def run(
+    libs: list[str],
+    num_envs: list[int],
+    steps: int | None,
+    repeats: int,
+    python_steps: int,
+    seed: int = 0,
+    log: Callable[[str], None] = print,
+) -> dict:
     """Run every (lib, N) measurement in one process and collect one report dict."""
     skipped: dict[str, str] = {}
     results: list[dict] = []
@@ -454,8 +470,10 @@ def run(libs: list[str], num_envs: list[int], steps: int | None, repeats: int,
                 break
             results.append(r)
             comp = "" if r["compile_s"] is None else f", compile {r['compile_s']:.2f} s"
-            log(f"       {_fmt_rate(r['steps_per_s'])} steps/s{comp}, "
-                f"episodes finished {r['episodes_finished']}")
+            log(
+                f"       {_fmt_rate(r['steps_per_s'])} steps/s{comp}, "
+                f"episodes finished {r['episodes_finished']}"
+            )
     return {
         "benchmark": "env_throughput",
         "env": "MiniGrid-DoorKey-8x8",
@@ -469,9 +487,15 @@ def run(libs: list[str], num_envs: list[int], steps: int | None, repeats: int,
             "steps_per_s_median also given",
             "minigrid": "single gymnasium env, Python loop, N=1 only",
         },
-        "config": {"libs": libs, "num_envs": num_envs, "steps": steps,
-                   "default_steps": {n: default_steps(n) for n in num_envs},
-                   "python_steps": python_steps, "repeats": repeats, "seed": seed},
+        "config": {
+            "libs": libs,
+            "num_envs": num_envs,
+            "steps": steps,
+            "default_steps": {n: default_steps(n) for n in num_envs},
+            "python_steps": python_steps,
+            "repeats": repeats,
+            "seed": seed,
+        },
         "machine": machine_info(),
         "versions": library_versions(),
         "results": results,
@@ -483,19 +507,34 @@ def run(libs: list[str], num_envs: list[int], steps: int | None, repeats: int,
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--num-envs", type=int, nargs="+", default=list(DEFAULT_NUM_ENVS))
-    p.add_argument("--steps", type=int, default=None,
-                   help="scan length T for every N (default: about "
-                   f"{DEFAULT_STEP_BUDGET} env steps per N, i.e. T = budget / N)")
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="scan length T for every N (default: about "
+        f"{DEFAULT_STEP_BUDGET} env steps per N, i.e. T = budget / N)",
+    )
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--libs", nargs="+", default=list(ALL_LIBS), choices=ALL_LIBS)
-    p.add_argument("--python-steps", type=int, default=DEFAULT_PYTHON_STEPS,
-                   help="Python-loop steps per repeat for Farama minigrid")
+    p.add_argument(
+        "--python-steps",
+        type=int,
+        default=DEFAULT_PYTHON_STEPS,
+        help="Python-loop steps per repeat for Farama minigrid",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", metavar="PATH", default=None, help="also write the JSON here")
     args = p.parse_args(argv)
 
-    report = run(args.libs, args.num_envs, args.steps, args.repeats, args.python_steps,
-                 args.seed, log=lambda s: print(s, file=sys.stderr, flush=True))
+    report = run(
+        args.libs,
+        args.num_envs,
+        args.steps,
+        args.repeats,
+        args.python_steps,
+        args.seed,
+        log=lambda s: print(s, file=sys.stderr, flush=True),
+    )
     print(format_table(report["results"], report["skipped"], args.num_envs, args.libs))
     print()
     text = json.dumps(report, indent=2)

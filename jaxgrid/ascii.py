@@ -59,9 +59,16 @@ from jaxgrid.levels.fixed import FixedLevel
 COLOUR_LETTERS = {"R": 0, "G": 1, "B": 2, "P": 3, "Y": 4, "E": 5}
 # object letter -> (type, state, default colour or None when a colour is required)
 _OBJECTS = {
-    "W": (WALL, 0, GREY), "F": (FLOOR, 0, BLUE), "G": (GOAL, 0, GREEN), "V": (LAVA, 0, RED),
-    "D": (DOOR, CLOSED, None), "L": (DOOR, LOCKED, None), "_": (DOOR, OPEN, None),
-    "K": (KEY, 0, None), "A": (BALL, 0, None), "B": (BOX, 0, None),
+    "W": (WALL, 0, GREY),
+    "F": (FLOOR, 0, BLUE),
+    "G": (GOAL, 0, GREEN),
+    "V": (LAVA, 0, RED),
+    "D": (DOOR, CLOSED, None),
+    "L": (DOOR, LOCKED, None),
+    "_": (DOOR, OPEN, None),
+    "K": (KEY, 0, None),
+    "A": (BALL, 0, None),
+    "B": (BOX, 0, None),
 }
 _AGENT = {">>": 0, "VV": 1, "vv": 1, "<<": 2, "^^": 3}
 _EMPTY = {"..", "  "}
@@ -125,7 +132,7 @@ def parse_ascii(text: str) -> tuple[np.ndarray, tuple[int, int], int]:
         raise ValueError("ASCII map has no agent: put one of >>, VV, <<, ^^ on an empty cell")
     if len(agents) > 1:
         raise ValueError(f"ASCII map has {len(agents)} agents; the second is at {agents[1][2]}")
-    (pos, direction, _), = agents
+    ((pos, direction, _),) = agents
     return grid, pos, direction
 
 

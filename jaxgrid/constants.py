@@ -12,7 +12,17 @@ import numpy as np
 # Object types (minigrid.core.constants.OBJECT_TO_IDX).
 UNSEEN, EMPTY, WALL, FLOOR, DOOR, KEY, BALL, BOX, GOAL, LAVA, AGENT = range(11)
 OBJECT_NAMES = (
-    "unseen", "empty", "wall", "floor", "door", "key", "ball", "box", "goal", "lava", "agent",
+    "unseen",
+    "empty",
+    "wall",
+    "floor",
+    "door",
+    "key",
+    "ball",
+    "box",
+    "goal",
+    "lava",
+    "agent",
 )
 OBJECT_TO_IDX = {name: i for i, name in enumerate(OBJECT_NAMES)}
 

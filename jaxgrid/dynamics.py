@@ -79,7 +79,10 @@ def transition(state: State, action: jax.Array, max_steps: int):
 
     is_door = kind == DOOR
     can_overlap = (
-        (kind == EMPTY) | (kind == GOAL) | (kind == LAVA) | (kind == FLOOR)
+        (kind == EMPTY)
+        | (kind == GOAL)
+        | (kind == LAVA)
+        | (kind == FLOOR)
         | (is_door & (door_state == OPEN))
     )
     forward = action == FORWARD
@@ -91,8 +94,7 @@ def transition(state: State, action: jax.Array, max_steps: int):
     drop = (action == DROP) & ~hands_empty & (kind == EMPTY)
     toggle = action == TOGGLE
     unlock = (
-        toggle & is_door & (door_state == LOCKED)
-        & (carrying[0] == KEY) & (carrying[1] == colour)
+        toggle & is_door & (door_state == LOCKED) & (carrying[0] == KEY) & (carrying[1] == colour)
     )
     flip = toggle & is_door & (door_state != LOCKED)
     open_box = toggle & (kind == BOX)  # an empty box vanishes when opened (MiniGrid Box.toggle)
@@ -110,7 +112,10 @@ def transition(state: State, action: jax.Array, max_steps: int):
     ).astype(jnp.float32)
     truncated = step_count >= max_steps
     new_state = state.replace(
-        grid=grid, agent_pos=agent_pos, agent_dir=agent_dir, carrying=carrying,
+        grid=grid,
+        agent_pos=agent_pos,
+        agent_dir=agent_dir,
+        carrying=carrying,
         step_count=step_count,
     )
     return new_state, reward, terminated, truncated

@@ -58,8 +58,12 @@ class Environment(struct.PyTreeNode):
     def observe(self, state: State) -> dict:
         """MiniGrid's observation dict (without ``mission``): ``image`` and ``direction``."""
         image = egocentric_view(
-            state.grid, state.agent_pos, state.agent_dir, state.carrying,
-            self.view_size, self.see_through_walls,
+            state.grid,
+            state.agent_pos,
+            state.agent_dir,
+            state.carrying,
+            self.view_size,
+            self.see_through_walls,
         )
         return {"image": image, "direction": state.agent_dir}
 

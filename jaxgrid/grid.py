@@ -19,9 +19,7 @@ def room(width: int, height: int) -> np.ndarray:
 
 def cell(kind: int, colour: int = 0, state: int = 0) -> jax.Array:
     """uint8 ``(3,)`` cell encoding (arguments may be traced)."""
-    return jnp.stack([jnp.asarray(kind), jnp.asarray(colour), jnp.asarray(state)]).astype(
-        jnp.uint8
-    )
+    return jnp.stack([jnp.asarray(kind), jnp.asarray(colour), jnp.asarray(state)]).astype(jnp.uint8)
 
 
 def coords(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -55,7 +53,8 @@ def sample_cell(u: jax.Array, allowed: jax.Array) -> jax.Array:
     r = r - (cum[x] - counts[x])
     column = jnp.sum(  # allowed[x] as a select-sum: no gather under vmap
         jnp.where((jnp.arange(allowed.shape[0]) == x)[:, None], allowed, False),
-        axis=0, dtype=jnp.int32,
+        axis=0,
+        dtype=jnp.int32,
     )
     y = jnp.argmax(jnp.cumsum(column) > r)
     return jnp.stack([x, y]).astype(jnp.int32)

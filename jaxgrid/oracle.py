@@ -162,12 +162,10 @@ def oracle_action(
 
     front = get_cell(grid, front_pos(state))
     closed_door = (front[0] == DOOR) & (front[2] != OPEN)
-    act_ahead = jnp.where(
-        front[0] == KEY, PICKUP, jnp.where(closed_door, TOGGLE, FORWARD)
+    act_ahead = jnp.where(front[0] == KEY, PICKUP, jnp.where(closed_door, TOGGLE, FORWARD))
+    return jnp.where(rel_best == 0, act_ahead, jnp.where(rel_best == 1, RIGHT, LEFT)).astype(
+        jnp.int32
     )
-    return jnp.where(
-        rel_best == 0, act_ahead, jnp.where(rel_best == 1, RIGHT, LEFT)
-    ).astype(jnp.int32)
 
 
 def rollout_oracle(
@@ -199,8 +197,12 @@ def rollout_oracle(
     """
     horizon = env.max_steps if max_steps is None else int(max_steps)
     return _rollout(
-        env, key, jnp.asarray(obey_constraint), jnp.asarray(avoid_lava),
-        num_episodes=int(num_episodes), horizon=horizon,
+        env,
+        key,
+        jnp.asarray(obey_constraint),
+        jnp.asarray(avoid_lava),
+        num_episodes=int(num_episodes),
+        horizon=horizon,
     )
 
 

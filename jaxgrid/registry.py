@@ -13,7 +13,10 @@ from jaxgrid.scenarios import ThreeRoomsKey, TwoRooms
 def _empty(size: int, random_start: bool = False) -> Callable[[], Environment]:
     # EmptyEnv: max_steps 4 * size**2, see_through_walls=True.
     return lambda: Empty(
-        width=size, height=size, max_steps=4 * size**2, see_through_walls=True,
+        width=size,
+        height=size,
+        max_steps=4 * size**2,
+        see_through_walls=True,
         random_start=random_start,
     )
 

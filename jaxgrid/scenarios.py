@@ -118,9 +118,7 @@ class Scenario(Environment):
             raise ValueError(f"{name}.split must be one of {SPLITS}, got {self.split!r}")
         p = self.absent_colour_prob
         if isinstance(p, (int, float)) and not 0 <= p <= 1:
-            raise ValueError(
-                f"{name}.absent_colour_prob must be in [0, 1], got {p!r}"
-            )
+            raise ValueError(f"{name}.absent_colour_prob must be in [0, 1], got {p!r}")
 
     def constraint_table(self) -> dict:
         return language.combination_table(self.split, include_lava=self.has_lava)
@@ -175,9 +173,7 @@ class Scenario(Environment):
             into_lava & c.forbids_lava
         )
         teleport = into_lava & ~c.forbids_lava
-        new = new.replace(
-            agent_pos=jnp.where(teleport, state.extras.teleport_pos, new.agent_pos)
-        )
+        new = new.replace(agent_pos=jnp.where(teleport, state.extras.teleport_pos, new.agent_pos))
         terminated = terminated & ~teleport
         info = self._info(new, violation)
         return new, self.make_timestep(new, reward, terminated, truncated, info)

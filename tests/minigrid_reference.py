@@ -37,8 +37,16 @@ from jaxgrid.environment import Environment
 # Actions biased towards the ones that change the world (forward/toggle/pickup).
 ACTION_PROBS = np.array([0.12, 0.12, 0.34, 0.12, 0.08, 0.18, 0.04])
 
-FIELDS = ("image", "direction", "reward", "terminated", "truncated", "grid", "agent_pos",
-          "carrying")
+FIELDS = (
+    "image",
+    "direction",
+    "reward",
+    "terminated",
+    "truncated",
+    "grid",
+    "agent_pos",
+    "carrying",
+)
 
 
 def make_reference(env_id: str, **kwargs) -> MiniGridEnv:
@@ -71,8 +79,14 @@ class Episode:
     steps: dict  # field -> (T, ...) array
 
 
-def record_episode(mg: MiniGridEnv, actions, *, seed: int = -1, base_step: bool = False,
-                   encode_every_step: bool = False) -> Episode:
+def record_episode(
+    mg: MiniGridEnv,
+    actions,
+    *,
+    seed: int = -1,
+    base_step: bool = False,
+    encode_every_step: bool = False,
+) -> Episode:
     """Step the (already reset / set up) MiniGrid env ``mg`` with ``actions`` until it ends.
 
     ``base_step=True`` calls ``MiniGridEnv.step`` itself, bypassing a level's override (levels
@@ -111,14 +125,18 @@ def record_episode(mg: MiniGridEnv, actions, *, seed: int = -1, base_step: bool 
         if terminated or truncated:
             length = t + 1
             break
-    return Episode(seed, np.asarray(actions), length, obs["image"], int(obs["direction"]), grid0,
-                   steps)
+    return Episode(
+        seed, np.asarray(actions), length, obs["image"], int(obs["direction"]), grid0, steps
+    )
 
 
 def config_env(env: Environment) -> Environment:
     """The bare configuration ``step``/``observe`` depend on (hashable; one compile each)."""
     return Environment(
-        width=env.width, height=env.height, max_steps=env.max_steps, view_size=env.view_size,
+        width=env.width,
+        height=env.height,
+        max_steps=env.max_steps,
+        view_size=env.view_size,
         see_through_walls=env.see_through_walls,
     )
 
@@ -135,9 +153,14 @@ def jax_rollout(env: Environment, states, actions):
         def body(s, a):
             s, ts = env.step(s, a)
             out = {
-                "image": ts.observation["image"], "direction": ts.observation["direction"],
-                "reward": ts.reward, "terminated": ts.terminated, "truncated": ts.truncated,
-                "grid": s.grid, "agent_pos": s.agent_pos, "carrying": s.carrying,
+                "image": ts.observation["image"],
+                "direction": ts.observation["direction"],
+                "reward": ts.reward,
+                "terminated": ts.terminated,
+                "truncated": ts.truncated,
+                "grid": s.grid,
+                "agent_pos": s.agent_pos,
+                "carrying": s.carrying,
             }
             return s, out
 
@@ -184,7 +207,7 @@ def compare(label: str, episodes: list[Episode], obs0, outs) -> None:
     lines = [
         f"{label} seed {ep.seed}: first mismatch at step {t + 1} "
         f"(action {action} {ACTION_NAMES[action]}, previous actions "
-        f"{ep.actions[max(0, t - 8):t].tolist()}) in {fields}"
+        f"{ep.actions[max(0, t - 8) : t].tolist()}) in {fields}"
     ]
     for f in fields:
         ours, ref = outs[f][b, t], ep.steps[f][t]
@@ -206,9 +229,17 @@ def _diff(ours, ref) -> str:
     return f" (cells {cells})"
 
 
-def differential_run(mg: MiniGridEnv, seeds, num_steps: int, *, label: str = "",
-                     base_step: bool = False, setup=None, action_seed: int = 0,
-                     encode_every_step: bool = False) -> list[Episode]:
+def differential_run(
+    mg: MiniGridEnv,
+    seeds,
+    num_steps: int,
+    *,
+    label: str = "",
+    base_step: bool = False,
+    setup=None,
+    action_seed: int = 0,
+    encode_every_step: bool = False,
+) -> list[Episode]:
     """Reset ``mg`` with each seed (then ``setup(mg, seed)`` if given), convert it with
     ``from_minigrid``, record MiniGrid and replay jaxgrid over the same actions; compare.
 
@@ -225,8 +256,11 @@ def differential_run(mg: MiniGridEnv, seeds, num_steps: int, *, label: str = "",
         cfg = cfg or config_env(env)
         assert config_env(env) == cfg, "levels of one id must share a configuration"
         states.append(state)
-        episodes.append(record_episode(mg, acts, seed=seed, base_step=base_step,
-                                       encode_every_step=encode_every_step))
+        episodes.append(
+            record_episode(
+                mg, acts, seed=seed, base_step=base_step, encode_every_step=encode_every_step
+            )
+        )
     obs0, outs = jax_rollout(cfg, stack(states), jnp.asarray(actions))
     compare(label or (mg.spec.id if mg.spec else type(mg).__name__), episodes, obs0, outs)
     return episodes
@@ -249,8 +283,12 @@ class BlankEnv(MiniGridEnv):
     """A MiniGrid env of any size whose state is set from outside (see :func:`reference_for`)."""
 
     def __init__(self, width: int, height: int, **kwargs):
-        super().__init__(mission_space=MissionSpace(mission_func=lambda: ""), width=width,
-                         height=height, **kwargs)
+        super().__init__(
+            mission_space=MissionSpace(mission_func=lambda: ""),
+            width=width,
+            height=height,
+            **kwargs,
+        )
 
     def _gen_grid(self, width, height):
         self.grid = Grid(width, height)
@@ -260,8 +298,13 @@ class BlankEnv(MiniGridEnv):
 
 def reference_for(env: Environment, state) -> MiniGridEnv:
     """A MiniGrid env with ``env``'s configuration holding jaxgrid's ``state``."""
-    mg = BlankEnv(env.width, env.height, max_steps=env.max_steps,
-                  agent_view_size=env.view_size, see_through_walls=env.see_through_walls)
+    mg = BlankEnv(
+        env.width,
+        env.height,
+        max_steps=env.max_steps,
+        agent_view_size=env.view_size,
+        see_through_walls=env.see_through_walls,
+    )
     mg.reset(seed=0)
     set_minigrid_state(mg, state)
     return mg
@@ -283,8 +326,19 @@ def check_steps(env: Environment, state, actions, label: str = ""):
 
 def coverage(episodes: list[Episode]) -> dict:
     """How much of the dynamics a batch of recorded episodes exercised."""
-    stats = dict(episodes=len(episodes), steps=0, goal=0, lava=0, truncated=0, both=0,
-                 grid_changes=0, pickups=0, drops=0, unlocks=0, box_opened=0)
+    stats = dict(
+        episodes=len(episodes),
+        steps=0,
+        goal=0,
+        lava=0,
+        truncated=0,
+        both=0,
+        grid_changes=0,
+        pickups=0,
+        drops=0,
+        unlocks=0,
+        box_opened=0,
+    )
     for ep in episodes:
         n = ep.length
         s = ep.steps
@@ -300,7 +354,7 @@ def coverage(episodes: list[Episode]) -> dict:
         carry = np.concatenate([[1], s["carrying"][:n, 0]])
         stats["pickups"] += int(((carry[1:] != 1) & (carry[:-1] == 1)).sum())
         stats["drops"] += int(((carry[1:] == 1) & (carry[:-1] != 1)).sum())
-        doors = (grids[..., 0] == 4)
+        doors = grids[..., 0] == 4
         locked = (doors & (grids[..., 2] == 2)).sum(axis=(1, 2))
         stats["unlocks"] += int((locked[1:] < locked[:-1]).sum())
         boxes = (grids[..., 0] == 7).sum(axis=(1, 2)) + (carry == 7)

@@ -40,8 +40,11 @@ def test_registered_ids_include_minigrids_classic_levels():
     for n in (5, 6, 8, 16):
         assert f"MiniGrid-DoorKey-{n}x{n}-v0" in ids
         assert f"MiniGrid-Empty-{n}x{n}-v0" in ids
-    for env_id in ("MiniGrid-Empty-Random-5x5-v0", "MiniGrid-LavaGapS5-v0",
-                   "MiniGrid-LavaGapS7-v0"):
+    for env_id in (
+        "MiniGrid-Empty-Random-5x5-v0",
+        "MiniGrid-LavaGapS5-v0",
+        "MiniGrid-LavaGapS7-v0",
+    ):
         assert env_id in ids
 
 
@@ -80,8 +83,10 @@ def test_bad_view_size_is_rejected(view_size):
         DoorKey(width=8, height=8, max_steps=10, view_size=view_size)
 
 
-@pytest.mark.parametrize("field, value", [("width", 0), ("height", -1), ("max_steps", 0),
-                                          ("max_steps", 2.5), ("width", True)])
+@pytest.mark.parametrize(
+    "field, value",
+    [("width", 0), ("height", -1), ("max_steps", 0), ("max_steps", 2.5), ("width", True)],
+)
 def test_bad_sizes_are_rejected(field, value):
     with pytest.raises(ValueError, match=field):
         jaxgrid.make("MiniGrid-DoorKey-8x8-v0", **{field: value})
@@ -110,8 +115,13 @@ def test_env_is_static_configuration():
 
 # ------------------------------------------------------------------------- compile once
 
-CASES = ["MiniGrid-DoorKey-8x8-v0", "MiniGrid-LavaGapS7-v0", "MiniGrid-Empty-Random-5x5-v0",
-         "ascii", "autoreset"]
+CASES = [
+    "MiniGrid-DoorKey-8x8-v0",
+    "MiniGrid-LavaGapS7-v0",
+    "MiniGrid-Empty-Random-5x5-v0",
+    "ascii",
+    "autoreset",
+]
 
 
 def _env(case):

@@ -35,6 +35,7 @@ def test_table_and_ratio_with_skipped_lib():
         {"lib": "xminigrid", "num_envs": 1, "steps_per_s": 150.0, "compile_s": 1.0},
     ]
     assert bench.ratios(fake, [1]) == {1: {"vs": "xminigrid", "ratio": 2.0}}
-    table = bench.format_table(fake, {"minigrid": "ImportError: x"}, [1],
-                               ["jaxgrid", "navix", "xminigrid", "minigrid"])
+    table = bench.format_table(
+        fake, {"minigrid": "ImportError: x"}, [1], ["jaxgrid", "navix", "xminigrid", "minigrid"]
+    )
     assert "skipped: ImportError: x" in table and "2.00x (vs xminigrid)" in table

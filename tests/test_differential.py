@@ -33,14 +33,30 @@ MAX_T = 300  # steps per episode at most (episodes end earlier at max_steps / go
 LEVELS = [
     ("DoorKey-5x5", "MiniGrid-DoorKey-5x5-v0", {}, False),
     ("DoorKey-8x8", "MiniGrid-DoorKey-8x8-v0", {}, False),
-    ("DoorKey-8x8-view3", "MiniGrid-DoorKey-8x8-v0", {"agent_view_size": 3, "max_steps": 150},
-     False),
-    ("DoorKey-8x8-view5", "MiniGrid-DoorKey-8x8-v0", {"agent_view_size": 5, "max_steps": 150},
-     False),
-    ("DoorKey-8x8-seethrough", "MiniGrid-DoorKey-8x8-v0",
-     {"see_through_walls": True, "max_steps": 150}, False),
-    ("DoorKey-16x16-view11", "MiniGrid-DoorKey-16x16-v0",
-     {"agent_view_size": 11, "max_steps": 150}, False),  # no lookup table above view 9
+    (
+        "DoorKey-8x8-view3",
+        "MiniGrid-DoorKey-8x8-v0",
+        {"agent_view_size": 3, "max_steps": 150},
+        False,
+    ),
+    (
+        "DoorKey-8x8-view5",
+        "MiniGrid-DoorKey-8x8-v0",
+        {"agent_view_size": 5, "max_steps": 150},
+        False,
+    ),
+    (
+        "DoorKey-8x8-seethrough",
+        "MiniGrid-DoorKey-8x8-v0",
+        {"see_through_walls": True, "max_steps": 150},
+        False,
+    ),
+    (
+        "DoorKey-16x16-view11",
+        "MiniGrid-DoorKey-16x16-v0",
+        {"agent_view_size": 11, "max_steps": 150},
+        False,
+    ),  # no lookup table above view 9
     ("LavaGapS5", "MiniGrid-LavaGapS5-v0", {}, False),
     ("LavaGapS7", "MiniGrid-LavaGapS7-v0", {}, False),
     ("MultiRoom-N4-S5", "MiniGrid-MultiRoom-N4-S5-v0", {}, False),
@@ -78,8 +94,13 @@ def _run(env_id, kwargs, base_step, seeds, action_seed=0, **kw):
     mg = R.make_reference(env_id, **kwargs)
     label = f"{env_id} {kwargs}"
     return R.differential_run(
-        mg, seeds, min(mg.max_steps, MAX_T), label=label, base_step=base_step,
-        action_seed=zlib.crc32(label.encode()) + action_seed, **kw,  # own actions per variant
+        mg,
+        seeds,
+        min(mg.max_steps, MAX_T),
+        label=label,
+        base_step=base_step,
+        action_seed=zlib.crc32(label.encode()) + action_seed,
+        **kw,  # own actions per variant
     )
 
 
@@ -98,8 +119,14 @@ def test_converted_levels_step_like_minigrid(env_id, kwargs, base_step):
 def test_converted_levels_step_like_minigrid_many_seeds(env_id, kwargs, base_step):
     # Different seeds from the default run, a different action stream, and grid.encode() after
     # every step (no assumption about which actions leave the grid alone).
-    _run(env_id, kwargs, base_step, range(1000, 1000 + SLOW_SEEDS), action_seed=1,
-         encode_every_step=True)
+    _run(
+        env_id,
+        kwargs,
+        base_step,
+        range(1000, 1000 + SLOW_SEEDS),
+        action_seed=1,
+        encode_every_step=True,
+    )
 
 
 def test_differential_run_exercises_the_dynamics():

@@ -35,8 +35,7 @@ ALPHA = 1e-4
 
 def jax_resets(env, n=N_JAX, seed=0):
     states, _ = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(seed), n))
-    return (np.asarray(states.grid), np.asarray(states.agent_pos),
-            np.asarray(states.agent_dir))
+    return (np.asarray(states.grid), np.asarray(states.agent_pos), np.asarray(states.agent_dir))
 
 
 def minigrid_resets(mg, n=N_MINIGRID, seed=0):
@@ -139,8 +138,11 @@ class RectDoorKey(DoorKeyEnv):
 
     def __init__(self, width, height):
         MiniGridEnv.__init__(
-            self, mission_space=MissionSpace(mission_func=DoorKeyEnv._gen_mission), width=width,
-            height=height, max_steps=10 * width * height,
+            self,
+            mission_space=MissionSpace(mission_func=DoorKeyEnv._gen_mission),
+            width=width,
+            height=height,
+            max_steps=10 * width * height,
         )
 
 

@@ -311,11 +311,15 @@ def test_see_through_walls_shows_everything():
 def test_out_of_grid_cells_read_as_grey_walls(see_through_walls):
     # No border walls: the agent at the edge looks out of the grid (a view-only check against
     # MiniGrid, whose step would index outside its grid here).
-    level = jaxgrid.from_ascii("""
+    level = jaxgrid.from_ascii(
+        """
         ^^....
         ......
         ......
-    """, view_size=5, see_through_walls=see_through_walls)
+    """,
+        view_size=5,
+        see_through_walls=see_through_walls,
+    )
     state, ts = level.reset(KEY0)
     image = np.asarray(ts.observation["image"])
     mg = R.reference_for(level, state)
@@ -332,10 +336,18 @@ def test_out_of_grid_cells_read_as_grey_walls(see_through_walls):
 
 @pytest.mark.parametrize("view_size", [3, 5, 7, 9, 11])
 def test_view_sizes(view_size):
-    level = room((2, 2, "KR"), (6, 3, "AB"), (4, 4, "DY"), (1, 5, "V."), (7, 1, "G."),
-                 (5, 6, "BG"), view_size=view_size)
-    _, obs0, outs = play(level, [FORWARD, LEFT, FORWARD, RIGHT, RIGHT, FORWARD, FORWARD, LEFT],
-                         num_steps=T)
+    level = room(
+        (2, 2, "KR"),
+        (6, 3, "AB"),
+        (4, 4, "DY"),
+        (1, 5, "V."),
+        (7, 1, "G."),
+        (5, 6, "BG"),
+        view_size=view_size,
+    )
+    _, obs0, outs = play(
+        level, [FORWARD, LEFT, FORWARD, RIGHT, RIGHT, FORWARD, FORWARD, LEFT], num_steps=T
+    )
     assert obs0["image"].shape == (view_size, view_size, 3)
     assert outs["image"].shape[1:] == (view_size, view_size, 3)
     v = view_size
@@ -388,8 +400,9 @@ def test_view_sizes_above_31_are_rejected_up_front():
 
 
 def test_see_behind_matches_minigrid_objects():
-    cells = [(t, c, s) for t in range(1, 10) for c in range(6) for s in range(3)
-             if t == DOOR or s == 0]
+    cells = [
+        (t, c, s) for t in range(1, 10) for c in range(6) for s in range(3) if t == DOOR or s == 0
+    ]
     ours = np.asarray(see_behind(jnp.asarray(cells, jnp.uint8)))
     for cell, mine in zip(cells, ours, strict=True):
         obj = WorldObj.decode(*cell)
@@ -405,11 +418,23 @@ def test_ascii_legend():
         KPAGBE..vv    ####
     """)
     expected = {
-        (0, 0): (WALL, GREY, 0), (1, 0): (WALL, RED, 0), (2, 0): (FLOOR, BLUE, 0),
-        (3, 0): (FLOOR, PURPLE, 0), (4, 0): (GOAL, GREEN, 0), (5, 0): (LAVA, RED, 0),
-        (6, 0): (DOOR, RED, CLOSED), (7, 0): (DOOR, BLUE, LOCKED), (8, 0): (DOOR, YELLOW, OPEN),
-        (0, 1): (KEY, PURPLE, 0), (1, 1): (BALL, GREEN, 0), (2, 1): (BOX, GREY, 0),
-        (3, 1): EMPTY3, (4, 1): EMPTY3, (5, 1): EMPTY3, (6, 1): EMPTY3, (7, 1): (WALL, GREY, 0),
+        (0, 0): (WALL, GREY, 0),
+        (1, 0): (WALL, RED, 0),
+        (2, 0): (FLOOR, BLUE, 0),
+        (3, 0): (FLOOR, PURPLE, 0),
+        (4, 0): (GOAL, GREEN, 0),
+        (5, 0): (LAVA, RED, 0),
+        (6, 0): (DOOR, RED, CLOSED),
+        (7, 0): (DOOR, BLUE, LOCKED),
+        (8, 0): (DOOR, YELLOW, OPEN),
+        (0, 1): (KEY, PURPLE, 0),
+        (1, 1): (BALL, GREEN, 0),
+        (2, 1): (BOX, GREY, 0),
+        (3, 1): EMPTY3,
+        (4, 1): EMPTY3,
+        (5, 1): EMPTY3,
+        (6, 1): EMPTY3,
+        (7, 1): (WALL, GREY, 0),
         (8, 1): (WALL, GREY, 0),
     }
     assert grid.shape == (9, 2, 3)
@@ -432,8 +457,16 @@ def test_ascii_legend():
         ("##>>###\n##....#", ["line 1", "two characters"]),
         ("   \n  ", ["empty"]),
     ],
-    ids=["unknown-symbol", "unknown-colour", "no-agent", "two-agents", "ragged", "short-row",
-         "odd-width", "empty"],
+    ids=[
+        "unknown-symbol",
+        "unknown-colour",
+        "no-agent",
+        "two-agents",
+        "ragged",
+        "short-row",
+        "odd-width",
+        "empty",
+    ],
 )
 def test_ascii_parser_errors_name_the_place(text, fragments):
     with pytest.raises(ValueError) as err:

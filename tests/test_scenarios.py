@@ -112,7 +112,8 @@ def _door_walk_state(colour_forbidden_of: str):
         c for c in (0, 2, 3, 4, 5) if c not in (colours["this"], colours["other"])
     )
     state = state.replace(
-        grid=jnp.asarray(grid), agent_pos=jnp.array([dx - 1, dy], jnp.int32),
+        grid=jnp.asarray(grid),
+        agent_pos=jnp.array([dx - 1, dy], jnp.int32),
         agent_dir=jnp.int32(0),
     )
     state = _with_constraint(state, door_colour=np.int32(colours[colour_forbidden_of]))
