@@ -114,6 +114,7 @@ def make_config(mode: str, sizes: dict, updates: int):
         num_steps=sizes["num_steps"],
         update_epochs=sizes["epochs"],
         num_minibatches=sizes["minibatches"],
+        **({"conv_channels": ()} if sizes.get("mlp") else {}),
         # The LR schedule anneals over the timed updates; eval_every=1 allows tiny runs.
         total_timesteps=updates * sizes["num_envs"] * sizes["num_steps"],
         eval_every=1,
@@ -316,6 +317,7 @@ def _sizes_of(c) -> dict:
     return {
         "env": c.env_id, "num_envs": c.num_envs, "num_steps": c.num_steps,
         "epochs": c.update_epochs, "minibatches": c.num_minibatches,
+        "mlp": c.conv_channels == (),
     }  # fmt: skip
 
 
@@ -380,6 +382,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--profile", action="store_true", help="add a per-update time breakdown to each line"
     )
+    p.add_argument(
+        "--mlp",
+        action="store_true",
+        help="time the policy without its convolution (PPOConfig.conv_channels=())",
+    )
     p.add_argument("--out", default=None, help="also write the JSON lines to this file")
     return p  # fmt: skip
 
@@ -408,7 +415,7 @@ def main(argv=None) -> list[dict[str, Any]]:
     args = parse_args(argv)
     sizes = {
         "env": args.env, "num_envs": args.num_envs, "num_steps": args.num_steps,
-        "epochs": args.epochs, "minibatches": args.minibatches,
+        "epochs": args.epochs, "minibatches": args.minibatches, "mlp": args.mlp,
     }  # fmt: skip
     batch = args.num_envs * args.num_steps
     updates = max(1, args.timesteps // batch // args.repeats)
@@ -467,6 +474,7 @@ def main(argv=None) -> list[dict[str, Any]]:
             "num_steps": args.num_steps,
             "epochs": args.epochs,
             "minibatches": args.minibatches,
+            "network": "mlp" if args.mlp else "conv",
             "timesteps": timed,
             "repeats": args.repeats,
             "updates_per_call": updates,

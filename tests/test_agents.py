@@ -160,12 +160,27 @@ def multi_device_process(request, tmp_path_factory):
         (dict(checker_threshold=2.0), "checker_threshold"),
         (dict(penalty=-1.0), "penalty"),
         (dict(lagrangian_init=-1.0), "lagrangian_init"),
+        (dict(conv_channels=(16, 0)), "conv_channels"),
+        (dict(conv_channels=16), "conv_channels"),
         (dict(env_kwargs=(("max_steps", [3]),)), "env_kwargs"),
     ],
 )
 def test_config_rejects_bad_values(kwargs, field):
     with pytest.raises(ValueError, match=field):
         dataclasses.replace(TINY, **kwargs)
+
+
+def test_mlp_view_encoder_option():
+    """``conv_channels=()`` builds the policy without the convolution and still trains."""
+    config = dataclasses.replace(TINY, conv_channels=[])
+    assert config.conv_channels == () and hash(config) != hash(TINY)
+    learner = make_learner(config)
+    assert learner.network.conv_channels == ()
+    runner = learner.init(jax.random.PRNGKey(0))
+    assert not any("convs" in jax.tree_util.keystr(p) for p, _ in
+                   jax.tree_util.tree_leaves_with_path(runner.params))  # fmt: skip
+    runner, metrics = jax.jit(learner.update)(runner)
+    assert np.isfinite(float(metrics["loss"])) and int(runner.update) == 1
 
 
 def test_config_accepts_edges_and_normalises_env_kwargs():

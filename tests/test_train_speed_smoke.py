@@ -40,6 +40,21 @@ def test_tiny_run_prints_one_json_line_per_mode(tmp_path, capsys):
         assert len(line["sps_all"]) == 2
         assert "baseline_sps" not in line and "ratio" not in line
     assert "train_speed:" in captured.err  # progress goes to stderr
+    assert all(line["network"] == "conv" for line in lines)
+
+
+def test_mlp_flag_times_the_policy_without_convolution(monkeypatch):
+    built = []
+    real = train_speed.make_config
+
+    def spy(mode, sizes, updates):
+        built.append(real(mode, sizes, updates))
+        return built[-1]
+
+    monkeypatch.setattr(train_speed, "make_config", spy)
+    (line,) = train_speed.main(["--modes", "none", "--mlp"] + TINY[3:])
+    assert line["network"] == "mlp" and line["sps"] > 0
+    assert built and all(c.conv_channels == () for c in built)
 
 
 @pytest.mark.parametrize(
