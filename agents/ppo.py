@@ -463,12 +463,17 @@ class Learner(struct.PyTreeNode):
             "cost_value_loss": cv_loss, "entropy": entropy, "approx_kl": approx_kl,
         }  # fmt: skip
 
-    def penalty_at(self, update: jax.Array) -> jax.Array:
-        """The shaping penalty of update ``update`` (0-based): 0, a ramp, then ``penalty``."""
+    def constraint_ramp(self, update: jax.Array) -> jax.Array:
+        """How far the constraint is switched on at update ``update`` (0-based): 0 for the
+        first ``penalty_start`` of training, then a linear ramp to 1 over ``penalty_warmup``."""
         c = self.config
         start, warmup = c.penalty_start * c.num_updates, c.penalty_warmup * c.num_updates
         done = (update + 1 - start) / warmup if warmup > 0 else (update + 1 > start) * 1.0
-        return (c.penalty * jnp.clip(done, 0.0, 1.0)).astype(jnp.float32)
+        return jnp.clip(done, 0.0, 1.0)
+
+    def penalty_at(self, update: jax.Array) -> jax.Array:
+        """The shaping penalty of update ``update`` (0-based): 0, a ramp, then ``penalty``."""
+        return (self.config.penalty * self.constraint_ramp(update)).astype(jnp.float32)
 
     def update(self, runner: RunnerState):
         """One PPO update: rollout, GAE, epochs x minibatches. Returns per-update metrics."""
@@ -524,7 +529,8 @@ class Learner(struct.PyTreeNode):
         lagrange = runner.lagrange
         if c.reward_mode == "lagrangian":
             step = c.lagrangian_lr * (episode_cost - c.cost_target)
-            active = self.penalty_at(runner.update) > 0  # held at its start value until then
+            # Held at its start value until the constraint switches on (whatever ``penalty``).
+            active = self.constraint_ramp(runner.update) > 0
             lagrange = jnp.where(active, jnp.maximum(0.0, lagrange + step), lagrange)
         metrics = jax.tree.map(jnp.mean, info)
         totals = jax.tree.map(jnp.sum, stats)

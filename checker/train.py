@@ -189,7 +189,7 @@ def train_checker(
             "counterfactuals",
             counterfactuals,
             isinstance(counterfactuals, int) and counterfactuals >= 0,
-        ),  # noqa: E501
+        ),
     ):
         if not ok:
             raise ValueError(f"train_checker: invalid {name}={value!r}")

@@ -278,7 +278,8 @@ def test_lagrange_multiplier_rises_with_cost(lagrangian_train):
 
 def test_lagrange_multiplier_waits_for_penalty_start(tiny_checker):
     """Before ``penalty_start`` the multiplier stays at ``lagrangian_init``; then it moves."""
-    config = dataclasses.replace(LAGRANGIAN, penalty_start=0.5)
+    # penalty=0: the multiplier follows the schedule, not the shaping penalty's size.
+    config = dataclasses.replace(LAGRANGIAN, penalty_start=0.5, penalty=0.0)
     learner = make_learner(config, tiny_checker)
     runner = learner.init(jax.random.PRNGKey(0))
     update = jax.jit(learner.update)
