@@ -105,6 +105,7 @@ def chunk_records(
                 "train/alarms": int(t["alarms"].sum()),
                 "train/cost_rate": float(t["cost_rate"].mean()),
                 "train/episode_cost": float(t["episode_cost"].mean()),
+                "train/novelty_rate": float(t["novelty_rate"].mean()),
                 "train/lagrange": float(t["lagrange"][-1]),
                 "loss": float(t["loss"].mean()),
                 "entropy": float(t["entropy"].mean()),

@@ -93,6 +93,8 @@ def ppo_config(cfg, mode: str, *, env_id: str | None = None, steps: int | None =
             num_minibatches=cfg.num_minibatches, update_epochs=cfg.update_epochs, lr=cfg.lr,
             penalty=cfg.penalty, penalty_start=cfg.penalty_start,
             penalty_warmup=cfg.penalty_warmup,
+            # The bonus is for the experiment's own agents, not a behaviour agent elsewhere.
+            novelty_bonus=cfg.novelty_bonus if env_id in (None, cfg.env_id) else 0.0,
             eval_every=max(1, updates // cfg.curve_points),
             eval_episodes=cfg.eval_episodes, seed=cfg.seed,
         )  # fmt: skip

@@ -452,6 +452,38 @@ def test_checker_and_shaped_rewards(rollouts):
         assert np.abs(bootstrap).max() > 1e-3
 
 
+def test_novelty_bonus_pays_first_visits_per_episode():
+    """The bonus is the reward difference against the same rollout without it (same params
+    and keys, so the same actions), and equals a host replay of episodic first visits."""
+    base = dataclasses.replace(TINY, env_kwargs=SHORT)
+    plain, bonus = make_learner(base), make_learner(dataclasses.replace(base, novelty_bonus=0.5))
+    runner = plain.init(jax.random.PRNGKey(3))
+    tr0, carry0 = rollout(plain, runner)
+    tr1, carry1 = rollout(bonus, bonus.init(jax.random.PRNGKey(3)))
+    np.testing.assert_array_equal(tr0.action, tr1.action)
+    got = tr1.reward - tr0.reward
+
+    def visit(state, t, e):
+        x, y = state.agent_pos[t, e] if t is not None else state.agent_pos[e]
+        carrying = state.carrying[t, e, 0] if t is not None else state.carrying[e, 0]
+        return int(x), int(y), bool(carrying != 1)
+
+    start = jax.device_get(runner.env.state)
+    expected = np.zeros_like(got)
+    for e in range(got.shape[1]):
+        seen = {visit(start, None, e)}
+        for t in range(got.shape[0]):
+            cell = visit(carry1.state, t, e)
+            if tr1.done[t, e]:
+                seen = {cell}  # the returned state starts the next episode
+                continue
+            expected[t, e] = 0.5 * (cell not in seen)
+            seen.add(cell)
+    np.testing.assert_allclose(got, expected, atol=1e-6)
+    assert 0 < (expected > 0).mean() < 1  # both first visits and revisits happen
+    assert tr1.done.any()  # and episodes restart within the rollout
+
+
 def test_terminal_step_on_the_time_limit_is_not_bootstrapped():
     """LavaGap with max_steps=1: every step truncates; stepping into lava also terminates."""
     config = dataclasses.replace(
