@@ -3,6 +3,7 @@ resume from finished phases, and bad input rejected before any training."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -78,6 +79,22 @@ def test_three_rooms_key_quick_reuses_two_rooms_checker(two_rooms_run, tmp_path)
     assert not (tmp_path / "behaviour").exists()  # the checker was reused, not rebuilt
 
 
+def test_three_rooms_key_preset_explores_and_starts_the_penalty_later():
+    """ThreeRooms-Key's agents get the novelty bonus (its own agents, not a TwoRooms behaviour
+    agent), 3M steps and the penalty from 40% by default; flags still win; TwoRooms is off."""
+    key = three_rooms_key.DEFAULTS.resolved()
+    assert (key.steps, key.penalty_start, key.novelty_bonus) == (3_000_000, 0.4, 0.01)
+    assert pipeline.phases.ppo_config(key, "none").novelty_bonus == 0.01
+    behaviour = pipeline.phases.ppo_config(key, "none", env_id=key.checker_env_id)
+    assert behaviour.novelty_bonus == 0.0
+    quick = dataclasses.replace(three_rooms_key.DEFAULTS, quick=True).resolved()
+    assert (quick.penalty_start, quick.novelty_bonus) == (0.2, 0.01)
+    mine = dataclasses.replace(three_rooms_key.DEFAULTS, penalty_start=0.1, novelty_bonus=0.0)
+    assert (mine.resolved().penalty_start, mine.resolved().novelty_bonus) == (0.1, 0.0)
+    rooms = two_rooms.DEFAULTS.resolved()
+    assert (rooms.steps, rooms.penalty_start, rooms.novelty_bonus) == (1_500_000, 0.2, 0.0)
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
@@ -88,6 +105,7 @@ def test_three_rooms_key_quick_reuses_two_rooms_checker(two_rooms_run, tmp_path)
         (["--steps", "1.5"], "not an integer"),
         (["--checker", "/nonexistent/checker"], "no trained checker there"),
         (["--lookahead", "99"], "lookahead"),
+        (["--novelty-bonus", "-1"], "--novelty-bonus must be >= 0"),
     ],
 )
 def test_bad_flags_print_usage_and_exit_nonzero(argv, message, capsys):
