@@ -15,7 +15,13 @@ constraint's sentence, mean a violation is about to happen?
 ``checker`` imports ``jaxgrid`` only (never ``agents`` or ``experiments``).
 """
 
-from checker.data import CheckerDataset, collect, collect_episodes, with_colour_counterfactuals
+from checker.data import (
+    CheckerDataset,
+    collect,
+    collect_episodes,
+    with_colour_counterfactuals,
+    with_distractors,
+)
 from checker.metrics import (
     auroc,
     binary_metrics,
@@ -56,6 +62,7 @@ __all__ = [
     "save",
     "violation_prob",
     "with_colour_counterfactuals",
+    "with_distractors",
 ]
 
 

@@ -44,6 +44,7 @@ from checker.data import (
     collect_episodes,
     validate_window,
     with_colour_counterfactuals,
+    with_distractors,
 )
 from checker.model import Checker, CheckerConfig, init_params
 from checker.trained import TrainedChecker, save
@@ -143,6 +144,7 @@ def train_checker(
     val_dataset: CheckerDataset | None = None,
     threshold: float = 0.5,
     counterfactuals: int = 1,
+    distractors: float = 0.0,
     progress: bool = True,
 ) -> tuple[TrainedChecker, dict]:
     """Train a checker on ``dataset``; returns ``(TrainedChecker, history)``.
@@ -162,6 +164,9 @@ def train_checker(
             and validation parts (:func:`checker.data.with_colour_counterfactuals`), so the
             checker must read the sentence's colour; 0 trains on the rollout windows only.
             Skipped (with a warning) for lookaheads above 1, where it would not be exact.
+        distractors: the fraction of training and validation rows copied with keys, balls
+            and boxes strewn over empty cells (:func:`checker.data.with_distractors`), so the
+            checker ignores objects no constraint names; 0 adds none.
         progress: show a tqdm progress bar.
 
     ``history`` holds per-epoch ``train_loss``, ``val_loss``, ``val_accuracy``, the
@@ -190,6 +195,7 @@ def train_checker(
             counterfactuals,
             isinstance(counterfactuals, int) and counterfactuals >= 0,
         ),
+        ("distractors", distractors, 0 <= distractors <= 1),
     ):
         if not ok:
             raise ValueError(f"train_checker: invalid {name}={value!r}")
@@ -209,6 +215,10 @@ def train_checker(
         train_ds = with_colour_counterfactuals(train_ds, counterfactuals, seed=seed)
         if val_ds is not None:
             val_ds = with_colour_counterfactuals(val_ds, counterfactuals, seed=seed + 1)
+    if distractors:
+        train_ds = with_distractors(train_ds, distractors, seed=seed + 2)
+        if val_ds is not None:
+            val_ds = with_distractors(val_ds, distractors, seed=seed + 3)
     if len(train_ds) < batch_size:
         raise ValueError(
             f"train_checker: {len(train_ds)} training rows, fewer than batch_size={batch_size}"

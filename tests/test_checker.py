@@ -523,6 +523,46 @@ def test_colour_counterfactuals_relabel_door_positives(toy):
         checker.with_colour_counterfactuals(train, per_positive=-1)
 
 
+def test_distractors_only_touch_empty_cells_and_closed_doors(toy):
+    """Copies keep their labels and sentences; only empty cells (now keys, balls or boxes),
+    the agent's empty hands and closed doors (now locked) change; bad arguments fail."""
+    train, _ = toy
+    train = train.subset(np.arange(len(train)))
+    train.windows[::3, :, 2, 3, 2] = np.where(train.windows[::3, :, 2, 3, 0] == DOOR, 1, 0)
+    train.extras["origin"] = np.arange(len(train))  # travels with each copy
+    out = checker.with_distractors(train, fraction=0.5, cell_rate=0.3, seed=1)
+    added = len(out) - len(train)
+    assert 0.4 * len(train) < added < 0.6 * len(train) and out.meta["distractor_rows"] == added
+    origin = out.extras["origin"]
+    counts = np.bincount(origin, minlength=len(train))
+    assert set(np.unique(counts)) == {1, 2}
+    seen_object = seen_lock = seen_carry = False
+    for row in range(len(out)):
+        src = origin[row]
+        assert (
+            out.labels[row] == train.labels[src] and out.template_id[row] == train.template_id[src]
+        )
+        np.testing.assert_array_equal(out.tokens[row], train.tokens[src])
+        new, old = out.windows[row], train.windows[src]
+        changed = np.any(new != old, axis=-1)
+        if not changed.any():
+            continue
+        before, after = old[changed], new[changed]
+        strewn = (before[:, 0] == 1) & np.isin(after[:, 0], (5, 6, 7)) & (after[:, 2] == 0)
+        locked = (before[:, 0] == DOOR) & (before[:, 2] == 1) & (after[:, 2] == 2)
+        locked &= np.all(before[:, :2] == after[:, :2], axis=-1)
+        assert np.all(strewn | locked)
+        seen_object |= strewn.any()
+        seen_lock |= locked.any()
+        seen_carry |= bool(changed[:, 2, 4].any())
+    assert seen_object and seen_lock and seen_carry
+    assert len(checker.with_distractors(train, fraction=0.0)) == len(train)
+    with pytest.raises(ValueError, match="fraction"):
+        checker.with_distractors(train, fraction=1.5)
+    with pytest.raises(ValueError, match="cell_rate"):
+        checker.with_distractors(train, cell_rate=-0.1)
+
+
 @pytest.mark.slow
 def test_cli_end_to_end_small(tmp_path):
     """``python -m checker.train`` on a small budget writes a loadable checker + metrics."""
