@@ -717,11 +717,16 @@ def with_distractors(
     a key: on ThreeRooms-Key it alarmed on 8% of the steps facing the key, with a median
     probability of 0.92, which taught its agents not to pick the key up.
     ``meta["distractor_rows"]`` counts the copies. Raises ``ValueError`` for a fraction or a
-    rate outside [0, 1].
+    rate outside [0, 1], or a lookahead above 1: further ahead, an object on the agent's path
+    or a locked door could stop a violation the label promises.
     """
     for name, value in (("fraction", fraction), ("cell_rate", cell_rate)):
         if not 0 <= value <= 1:
             raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+    if dataset.meta.get("lookahead", 1) > 1:
+        raise ValueError(
+            f"distractors need lookahead 0 or 1 (exact labels), got {dataset.meta['lookahead']}"
+        )
     rng = np.random.default_rng(seed)
     rows = np.flatnonzero(rng.random(len(dataset)) < fraction)
     if len(rows) == 0:

@@ -144,7 +144,7 @@ def train_checker(
     val_dataset: CheckerDataset | None = None,
     threshold: float = 0.5,
     counterfactuals: int = 1,
-    distractors: float = 0.0,
+    distractors: float = 0.5,
     progress: bool = True,
 ) -> tuple[TrainedChecker, dict]:
     """Train a checker on ``dataset``; returns ``(TrainedChecker, history)``.
@@ -166,7 +166,10 @@ def train_checker(
             Skipped (with a warning) for lookaheads above 1, where it would not be exact.
         distractors: the fraction of training and validation rows copied with keys, balls
             and boxes strewn over empty cells (:func:`checker.data.with_distractors`), so the
-            checker ignores objects no constraint names; 0 adds none.
+            checker ignores objects no constraint names; 0 adds none. Trained without them,
+            the TwoRooms checker alarmed on ThreeRooms-Key at 627 of 76.8k random-policy steps
+            (0 violations), 337 of them facing the key; with 0.5, 169, and the agents it
+            shaped there kept picking the key up. Skipped (with a warning) above lookahead 1.
         progress: show a tqdm progress bar.
 
     ``history`` holds per-epoch ``train_loss``, ``val_loss``, ``val_accuracy``, the
@@ -215,7 +218,13 @@ def train_checker(
         train_ds = with_colour_counterfactuals(train_ds, counterfactuals, seed=seed)
         if val_ds is not None:
             val_ds = with_colour_counterfactuals(val_ds, counterfactuals, seed=seed + 1)
-    if distractors:
+    if distractors and dataset.meta.get("lookahead", 1) > 1:
+        warnings.warn(
+            f"train_checker: no distractors for lookahead {dataset.meta['lookahead']} > 1 "
+            "(the labels would not stay exact)",
+            stacklevel=2,
+        )
+    elif distractors:
         train_ds = with_distractors(train_ds, distractors, seed=seed + 2)
         if val_ds is not None:
             val_ds = with_distractors(val_ds, distractors, seed=seed + 3)

@@ -561,6 +561,9 @@ def test_distractors_only_touch_empty_cells_and_closed_doors(toy):
         checker.with_distractors(train, fraction=1.5)
     with pytest.raises(ValueError, match="cell_rate"):
         checker.with_distractors(train, cell_rate=-0.1)
+    train.meta["lookahead"] = 2
+    with pytest.raises(ValueError, match="lookahead"):
+        checker.with_distractors(train)
 
 
 @pytest.mark.slow
