@@ -74,6 +74,7 @@ from jax import lax
 from checker.reward import init_buffer, push
 from checker.trained import check_vocab
 from jaxgrid import language
+from jaxgrid.constants import BALL, BOX, CLOSED, COLOR_NAMES, DOOR, EMPTY, KEY, LOCKED
 from jaxgrid.wrappers import AutoReset
 
 __all__ = [
@@ -701,7 +702,7 @@ def _append(dataset: CheckerDataset, extra: CheckerDataset, rng, counter: str) -
 # --------------------------------------------------------------------------------------
 # Distractor objects
 # --------------------------------------------------------------------------------------
-_PORTABLE = (5, 6, 7)  # key, ball, box: no constraint names them
+_PORTABLE = (KEY, BALL, BOX)  # no constraint names them
 
 
 def with_distractors(
@@ -709,7 +710,7 @@ def with_distractors(
 ) -> CheckerDataset:
     """``dataset`` plus noisy copies of a ``fraction`` of its rows, with the same labels.
 
-    In a copy, each empty cell (object 1) of each frame becomes, with probability
+    In a copy, each empty cell of each frame becomes, with probability
     ``cell_rate``, a key, ball or box of a random colour, and in half of the copies the agent's
     own cell shows it carrying one (the same object through the window). The constraint
     language only names doors and lava, so such objects never change whether a violation
@@ -734,22 +735,23 @@ def with_distractors(
     extra = dataset.subset(rows)
     w = extra.windows.copy()  # (N, window, V, V, 3)
     objects = rng.choice(_PORTABLE, size=w.shape[:-1])
-    colours = rng.integers(0, 6, size=w.shape[:-1])
-    noisy = (w[..., 0] == 1) & (rng.random(w.shape[:-1]) < cell_rate)
+    colours = rng.integers(0, len(COLOR_NAMES), size=w.shape[:-1])
+    noisy = (w[..., 0] == EMPTY) & (rng.random(w.shape[:-1]) < cell_rate)
     w[..., 0] = np.where(noisy, objects, w[..., 0])
     w[..., 1] = np.where(noisy, colours, w[..., 1])
     w[..., 2] = np.where(noisy, 0, w[..., 2])
     v = w.shape[2]
     carry = rng.random(len(rows)) < 0.5
-    held = np.stack([rng.choice(_PORTABLE, len(rows)), rng.integers(0, 6, len(rows)),
+    held = np.stack([rng.choice(_PORTABLE, len(rows)), rng.integers(0, len(COLOR_NAMES), len(rows)),
                      np.zeros(len(rows), int)], -1)  # fmt: skip
     agent = w[:, :, v // 2, v - 1]  # (N, window, 3)
-    empty_handed = agent[..., 0] == 1  # frames where the agent carries nothing
+    empty_handed = agent[..., 0] == EMPTY  # frames where the agent carries nothing
     put = carry[:, None] & empty_handed
     w[:, :, v // 2, v - 1] = np.where(put[..., None], held[:, None, :], agent)
     # Closed doors shown locked in half of the copies: neither can be entered on the next
     # step, so the labels stay exact for lookaheads 0 and 1.
-    lock = (rng.random(len(rows)) < 0.5)[:, None, None, None] & (w[..., 0] == 4) & (w[..., 2] == 1)
-    w[..., 2] = np.where(lock, 2, w[..., 2])
+    closed = (w[..., 0] == DOOR) & (w[..., 2] == CLOSED)
+    lock = (rng.random(len(rows)) < 0.5)[:, None, None, None] & closed
+    w[..., 2] = np.where(lock, LOCKED, w[..., 2])
     extra.windows = w.astype(dataset.windows.dtype)
     return _append(dataset, extra, rng, "distractor_rows")

@@ -143,8 +143,9 @@ PRESETS: dict[str, dict] = {
 # for PPO: in 3M steps of `none` not one of 20k training episodes reached the goal. With an
 # episodic novelty bonus of 0.01 (its agents only; annealed to 0) `none` solved it by 1.1M
 # on one seed; at 1.5M steps, 3 seeds, penalty from 20%, 2 `none` seeds and 1 `shaped` seed
-# solved it and `checker` collapsed when its penalty began (the TwoRooms checker alarms on 8%
-# of the steps facing the key, never seen in TwoRooms). Hence 3M steps, penalty from 40%.
+# solved it and `checker` collapsed when its penalty began (its checker, then trained without
+# distractor copies, alarmed on 8% of the steps facing the key). Hence 3M steps and the
+# penalty from 40%, once the agents find the goal.
 _KEY_BONUS = dict(novelty_bonus=0.01)
 PRESET_CHANGES: dict[str, dict[str, dict]] = {
     "two_rooms_lava": {"default": dict(steps=3_000_000, behaviour_steps=600_000)},
