@@ -43,6 +43,7 @@ import jaxgrid
 from agents.evaluation import play_episodes, summarise, violation_of
 from agents.networks import ActorCritic
 from jaxgrid import language
+from jaxgrid.constants import EMPTY
 from jaxgrid.wrappers import AutoReset
 
 REWARD_MODES = ("none", "shaped", "checker", "lagrangian")
@@ -326,7 +327,7 @@ class Learner(struct.PyTreeNode):
             return jnp.zeros((states.agent_pos.shape[0], 1), bool)
         env = self.env
         x, y = states.agent_pos[:, 0], states.agent_pos[:, 1]
-        carrying = (states.carrying[:, 0] != 1).astype(jnp.int32)  # 1 = empty
+        carrying = (states.carrying[:, 0] != EMPTY).astype(jnp.int32)
         cell = (x * env.height + y) * 2 + carrying
         return cell[:, None] == jnp.arange(env.width * env.height * 2)
 
@@ -403,7 +404,7 @@ class Learner(struct.PyTreeNode):
         # episode ended, ``states`` is the next episode's start, whose visit opens a new set.
         hit = self._visits(states)
         new = ~jnp.any(carry.visited & hit, axis=1) & ~done
-        bonus = novelty * new.astype(jnp.float32) if c.novelty_bonus > 0 else 0.0
+        bonus = novelty * new.astype(jnp.float32)  # novelty is 0 when the bonus is off
         reward = reward + bonus
         visited = jnp.where(done[:, None], hit, carry.visited | hit)
 
@@ -436,7 +437,7 @@ class Learner(struct.PyTreeNode):
             "violations": violation.sum(),
             "alarms": alarm.sum(),
             "cost": cost.sum(),
-            "novelty": jnp.sum(bonus * jnp.ones_like(reward)),
+            "novelty": bonus.sum(),
         }
         carry = EnvCarry(
             state=states, obs=ts.observation, sentence=self._sentence(ts.observation),
