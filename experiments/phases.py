@@ -95,6 +95,9 @@ def ppo_config(cfg, mode: str, *, env_id: str | None = None, steps: int | None =
             penalty_warmup=cfg.penalty_warmup,
             # The bonus is for the experiment's own agents, not a behaviour agent elsewhere.
             novelty_bonus=cfg.novelty_bonus if env_id in (None, cfg.env_id) else 0.0,
+            # The behaviour agent (``env_id`` given) keeps PPO's default entropy bonus, so that
+            # the checker's data does not depend on it.
+            **({"ent_coef": cfg.ent_coef} if env_id is None else {}),
             eval_every=max(1, updates // cfg.curve_points),
             eval_episodes=cfg.eval_episodes, seed=cfg.seed,
         )  # fmt: skip

@@ -61,6 +61,7 @@ class ExperimentConfig:
     penalty_start: float | None = None  # no penalty for this fraction of training (preset 0.2)
     penalty_warmup: float = 0.1  # then a linear ramp over this fraction
     novelty_bonus: float | None = None  # exploration bonus (PPOConfig.novelty_bonus)
+    ent_coef: float | None = None  # PPO's entropy bonus of the compared agents (preset 0.01)
     curve_points: int | None = None
     eval_episodes: int | None = None
     final_episodes: int | None = None
@@ -101,8 +102,10 @@ class ExperimentConfig:
             raise ValueError(f"--lr must be > 0, got {self.lr}")
         if self.penalty < 0:
             raise ValueError(f"--penalty must be >= 0, got {self.penalty}")
-        if self.novelty_bonus is not None and not self.novelty_bonus >= 0:
-            raise ValueError(f"--novelty-bonus must be >= 0, got {self.novelty_bonus}")
+        for name in ("novelty_bonus", "ent_coef"):
+            value = getattr(self, name)
+            if value is not None and not value >= 0:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
         for name in ("penalty_start", "penalty_warmup"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be in [0, 1], got "
@@ -125,15 +128,15 @@ PRESETS: dict[str, dict] = {
     # --quick: the outputs and their schema, in minutes; results mean nothing.
     "quick": dict(seeds=2, steps=16_384, behaviour_steps=8_192, checker_samples=512,
                   checker_epochs=3, num_envs=32, curve_points=2, eval_episodes=16,
-                  final_episodes=32, novelty_bonus=0.0, penalty_start=0.2),
+                  final_episodes=32, novelty_bonus=0.0, penalty_start=0.2, ent_coef=0.01),
     # Default: meaningful results within about 30 minutes on a 2-core CPU.
     "default": dict(seeds=3, steps=1_500_000, behaviour_steps=300_000, checker_samples=12_000,
                     checker_epochs=40, num_envs=128, curve_points=15, eval_episodes=50,
-                    final_episodes=500, novelty_bonus=0.0, penalty_start=0.2),
+                    final_episodes=500, novelty_bonus=0.0, penalty_start=0.2, ent_coef=0.01),
     # --paper: the paper's budget (1e7 steps), 5 seeds, 50 evaluation episodes a checkpoint.
     "paper": dict(seeds=5, steps=10_000_000, behaviour_steps=1_000_000, checker_samples=12_000,
                   checker_epochs=60, num_envs=256, curve_points=40, eval_episodes=50,
-                  final_episodes=500, novelty_bonus=0.0, penalty_start=0.2),
+                  final_episodes=500, novelty_bonus=0.0, penalty_start=0.2, ent_coef=0.01),
 }  # fmt: skip
 # Per-experiment changes to a preset. TwoRooms-Lava at 1.5M steps: with the penalty from 20%
 # the constrained agents stopped at about 25% success (the unconstrained one needs about
@@ -146,9 +149,21 @@ PRESETS: dict[str, dict] = {
 # solved it and `checker` collapsed when its penalty began (its checker, then trained without
 # distractor copies, alarmed on 8% of the steps facing the key). Hence 3M steps and the
 # penalty from 40%, once the agents find the goal.
+# TwoRooms-Lava, seed 1 of the default run: its agents found allowed lava's shortcut (a
+# teleport next to the goal) by 0.2M steps and their policy's entropy fell to 0.14 before the
+# penalty began, after which neither `shaped` nor `checker` learned to tell forbidden lava
+# from allowed lava (25.6% and 27.6% violations at 3M steps; seeds 0 and 2 at 0%). With an
+# entropy bonus of 0.03 (`shaped` and `checker`, 3 seeds, 3M steps, 50 evaluation episodes)
+# the last evaluations were 0/4/2% and 0/2/0% violations, 96-100% and 82-96% success; a
+# penalty from the start stopped learning (26% success) and a penalty of 2 cut success to 70%.
+_LAVA_ENTROPY = dict(ent_coef=0.03)
 _KEY_BONUS = dict(novelty_bonus=0.01)
 PRESET_CHANGES: dict[str, dict[str, dict]] = {
-    "two_rooms_lava": {"default": dict(steps=3_000_000, behaviour_steps=600_000)},
+    "two_rooms_lava": {
+        "quick": _LAVA_ENTROPY,
+        "default": dict(_LAVA_ENTROPY, steps=3_000_000, behaviour_steps=600_000),
+        "paper": _LAVA_ENTROPY,
+    },
     "three_rooms_key": {
         "quick": _KEY_BONUS,
         "default": dict(_KEY_BONUS, steps=3_000_000, penalty_start=0.4),

@@ -9,7 +9,8 @@ import os
 
 import pytest
 
-from experiments import pipeline, three_rooms_key, two_rooms
+from agents.ppo import PPOConfig
+from experiments import pipeline, three_rooms_key, two_rooms, two_rooms_lava
 from experiments.report import validate_results
 
 OUTPUTS = ("results.json", "results.md", "curves.png", "checker.json", "episodes.gif",
@@ -95,6 +96,23 @@ def test_three_rooms_key_preset_explores_and_starts_the_penalty_later():
     assert (rooms.steps, rooms.penalty_start, rooms.novelty_bonus) == (1_500_000, 0.2, 0.0)
 
 
+def test_two_rooms_lava_preset_raises_the_entropy_bonus_of_its_agents_only():
+    """TwoRooms-Lava's compared agents get ent_coef 0.03 in every preset; its behaviour agent
+    (whose rollouts become the checker's data) and the other scenarios keep PPO's 0.01."""
+    lava = two_rooms_lava.DEFAULTS.resolved()
+    assert lava.ent_coef == 0.03
+    for mode in ("checker", "shaped", "none", "lagrangian"):
+        assert pipeline.phases.ppo_config(lava, mode).ent_coef == 0.03
+    behaviour = pipeline.phases.ppo_config(lava, "none", env_id=lava.checker_env_id)
+    assert behaviour.ent_coef == PPOConfig.ent_coef == 0.01
+    for preset in ({"quick": True}, {"paper": True}):
+        assert dataclasses.replace(two_rooms_lava.DEFAULTS, **preset).resolved().ent_coef == 0.03
+    mine = dataclasses.replace(two_rooms_lava.DEFAULTS, ent_coef=0.0).resolved()
+    assert pipeline.phases.ppo_config(mine, "checker").ent_coef == 0.0
+    for module in (two_rooms, three_rooms_key):
+        assert pipeline.phases.ppo_config(module.DEFAULTS.resolved(), "shaped").ent_coef == 0.01
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
@@ -106,6 +124,7 @@ def test_three_rooms_key_preset_explores_and_starts_the_penalty_later():
         (["--checker", "/nonexistent/checker"], "no trained checker there"),
         (["--lookahead", "99"], "lookahead"),
         (["--novelty-bonus", "-1"], "--novelty-bonus must be >= 0"),
+        (["--ent-coef", "-0.5"], "--ent-coef must be >= 0"),
     ],
 )
 def test_bad_flags_print_usage_and_exit_nonzero(argv, message, capsys):
