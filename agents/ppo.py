@@ -286,12 +286,16 @@ class Learner(struct.PyTreeNode):
     has_language: bool = struct.field(pytree_node=False, default=True)
     checker: Any = None
     table: jax.Array = None  # int32 (K, L)
+    # Real tokens of the table's longest sentence. The sentence encoders run this many steps:
+    # on the pad tail a GRU's carry is never read (same features and gradients, fewer steps).
+    words: int = struct.field(pytree_node=False, default=language.MAX_LEN)
 
     # -- pieces -------------------------------------------------------------------------
     def _lang_table(self, params):
         if not self.has_language:
             return jnp.zeros((1, self.network.lang_dim), jnp.float32)
-        return self.network.apply(params, self.table, method=ActorCritic.sentence_features)
+        tokens = self.table[:, : self.words]
+        return self.network.apply(params, tokens, method=ActorCritic.sentence_features)
 
     def _policy(self, params, lang_table, image, direction, sentence):
         # A one-hot matmul instead of a gather: its gradient is a matmul, not a CPU scatter.
@@ -305,6 +309,31 @@ class Learner(struct.PyTreeNode):
         if self.checker is None:
             return jnp.zeros(images.shape[:-3] + (1,), jnp.float32)
         return self.checker.embed_states(images)
+
+    def _embed_where(self, mask, images, other, chunk: int = 16):
+        """``where(mask, embed(images), other)`` per env, embedding only the masked rows.
+
+        Few envs end an episode on a given step, so the masked rows are embedded ``chunk`` at
+        a time in a ``while_loop`` (one pass in the common case, as many as needed when many
+        episodes end together). A frame's embedding does not depend on the other rows of its
+        batch, so the result is the same as embedding every row.
+        """
+        n = mask.shape[0]
+        chunk = min(chunk, n)
+        rank = jnp.cumsum(mask) - 1  # position of each masked row among the masked rows
+        rows = jnp.nonzero(mask, size=n + chunk, fill_value=0)[0]  # masked rows first; the
+        count = mask.sum()  # zero tail keeps every slice in range
+
+        def body(state):
+            start, out = state
+            take = lax.dynamic_slice_in_dim(rows, start, chunk)
+            emb = self._embed(images[take])
+            here = mask & (rank >= start) & (rank < start + chunk)
+            return start + chunk, jnp.where(
+                here[:, None], emb[jnp.clip(rank - start, 0, chunk - 1)], out
+            )
+
+        return lax.while_loop(lambda s: s[0] < count, body, (jnp.int32(0), other))[1]
 
     def _empty_frames(self, num_envs):
         pad = self._embed(jnp.zeros((1, self.env.view_size, self.env.view_size, 3), jnp.uint8))
@@ -334,7 +363,7 @@ class Learner(struct.PyTreeNode):
     def _checker_prob(self, frames, emb, sentence):
         """P(violation) for the window (frames..., emb) of each env."""
         window = jnp.concatenate([frames, emb[:, None]], axis=1)
-        lang = self.checker.encode_language(self.table)[sentence]
+        lang = self.checker.encode_language(self.table[:, : self.words])[sentence]
         return jax.nn.sigmoid(self.checker.classify(window, lang))
 
     # -- init ---------------------------------------------------------------------------
@@ -385,12 +414,14 @@ class Learner(struct.PyTreeNode):
         alarm = prob = jnp.zeros_like(ts.reward)
         frames = carry.frames
         if self.checker is not None:
-            emb = self._embed(jnp.stack([final["image"], ts.observation["image"]]))
-            prob = self._checker_prob(carry.frames, emb[0], carry.sentence)
+            emb = self._embed(final["image"])
+            prob = self._checker_prob(carry.frames, emb, carry.sentence)
             alarm = (prob > c.checker_threshold).astype(jnp.float32)
-            # Append the returned observation (the final one where the episode goes on); where
-            # it ended, the window restarts at the next episode's first observation.
-            frames = self._push(carry.frames, emb[1], done)
+            # Append the returned observation: the final one where the episode goes on; where
+            # it ended, the window restarts at the next episode's first observation, which
+            # only those few envs embed.
+            emb = self._embed_where(done, ts.observation["image"], emb)
+            frames = self._push(carry.frames, emb, done)
         signal = prob if c.soft_checker else alarm
         cost = jnp.zeros_like(ts.reward)
         reward = ts.reward
@@ -619,6 +650,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
     if config.reward_mode in ("none", "shaped"):
         checker = None  # not needed: skip its cost
     num_updates = config.num_chunks * config.eval_every
+    table = sentence_table(env)
 
     def schedule(count):
         per_update = config.update_epochs * config.num_minibatches
@@ -636,7 +668,8 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
         optimizer=optimizer,
         checker=checker,
         has_language=hasattr(env, "constraint_table"),
-        table=jnp.asarray(sentence_table(env)),
+        table=jnp.asarray(table),
+        words=max(1, int((table != language.VOCAB.index(language.PAD)).sum(1).max())),
     )
 
 
