@@ -433,6 +433,37 @@ def test_checker_embedding_ring_buffer_matches_raw_frames(rollouts, tiny_checker
     assert np.ptp(ref["prob"]) > 1e-3  # a random checker still gives varied probabilities
 
 
+def test_checker_embeds_only_the_masked_rows_with_the_same_bits(tiny_checker):
+    """``_embed_where`` (the first frames of new episodes) equals embedding every row and
+    selecting, bit for bit: no row, a few rows, more rows than one chunk, and under vmap."""
+    config = dataclasses.replace(TINY, num_envs=40, total_timesteps=40 * 8 * 4,
+                                 reward_mode="checker")  # fmt: skip
+    learner = make_learner(config, tiny_checker)
+    rng = np.random.default_rng(0)
+    images = jnp.asarray(rng.integers(0, 11, (3, 40, 5, 5, 3)), jnp.uint8)
+    other = jnp.asarray(rng.normal(size=(3, 40, CHECKER_CONFIG.state_dim)), jnp.float32)
+    masks = np.zeros((3, 40), bool)
+    masks[1, [3, 17, 38]] = True
+    masks[2, rng.permutation(40)[:37]] = True  # three chunks of 16
+    dense = jax.jit(lambda m, i, o: jnp.where(m[:, None], learner._embed(i), o))
+    sparse = jax.jit(learner._embed_where)
+    for m, i, o in zip(masks, images, other, strict=True):
+        np.testing.assert_array_equal(sparse(m, i, o), dense(m, i, o))
+    batched = jax.jit(jax.vmap(learner._embed_where))(masks, images, other)
+    np.testing.assert_array_equal(batched, jax.vmap(dense)(masks, images, other))
+
+
+def test_sentence_encoders_skip_the_pad_tail():
+    """The policy's sentence features run the GRU over the table's longest sentence only,
+    with the same bits as over every padded token."""
+    learner = make_learner(TINY)
+    lengths = np.sum(np.asarray(learner.table) != 0, axis=1)
+    assert learner.words == lengths.max() < learner.table.shape[1]
+    params = learner.init(jax.random.PRNGKey(0)).params
+    full = jax.jit(learner.replace(words=learner.table.shape[1])._lang_table)(params)
+    np.testing.assert_array_equal(jax.jit(learner._lang_table)(params), full)
+
+
 def test_checker_and_shaped_rewards(rollouts):
     _, out = rollouts
     for name, (learner, tr, _, ref) in out.items():
