@@ -44,7 +44,6 @@ from agents.evaluation import play_episodes, summarise, violation_of
 from agents.networks import ActorCritic
 from jaxgrid import language
 from jaxgrid.constants import EMPTY
-from jaxgrid.wrappers import AutoReset
 
 REWARD_MODES = ("none", "shaped", "checker", "lagrangian")
 
@@ -271,6 +270,42 @@ def sentence_index(tokens: jax.Array | None, table: jax.Array) -> jax.Array:
     return jnp.argmax(match, axis=-1).astype(jnp.int32)
 
 
+def _pick(obs: dict) -> dict:
+    """The parts of an observation that name its sentence."""
+    return {k: obs[k] for k in ("constraint", "direction") if k in obs}
+
+
+def masked_map(mask: jax.Array, fn, inputs, other, chunk: int = 16):
+    """``where(mask, fn(inputs), other)`` row by row, calling ``fn`` on the masked rows only.
+
+    ``fn`` maps a batch (pytree, leading axis) to a batch; ``other`` is a pytree of its output
+    shapes. Few envs end an episode on a given step, so the masked rows go through ``fn``
+    ``chunk`` at a time in a ``while_loop``: one pass in the common case, as many as needed
+    when many episodes end together (also under ``vmap``). For row-wise ``fn`` whose rows do
+    not depend on the rest of the batch (env resets, the checker's frame embedding) the result
+    has the same bits as computing every row.
+    """
+    n = mask.shape[0]
+    chunk = min(chunk, n)
+    rank = jnp.cumsum(mask) - 1  # position of each masked row among the masked rows
+    rows = jnp.nonzero(mask, size=n + chunk, fill_value=0)[0]  # masked rows first; the zero
+    count = mask.sum()  # tail keeps every slice in range
+
+    def body(state):
+        start, out = state
+        take = lax.dynamic_slice_in_dim(rows, start, chunk)
+        new = fn(jax.tree.map(lambda x: x[take], inputs))
+        here = mask & (rank >= start) & (rank < start + chunk)
+        pick = jnp.clip(rank - start, 0, chunk - 1)
+
+        def place(a, b):
+            return jnp.where(here.reshape((n,) + (1,) * (b.ndim - 1)), a[pick], b)
+
+        return start + chunk, jax.tree.map(place, new, out)
+
+    return lax.while_loop(lambda s: s[0] < count, body, (jnp.int32(0), other))[1]
+
+
 class Learner(struct.PyTreeNode):
     """The pure functions of a run, closed over its static configuration.
 
@@ -310,30 +345,23 @@ class Learner(struct.PyTreeNode):
             return jnp.zeros(images.shape[:-3] + (1,), jnp.float32)
         return self.checker.embed_states(images)
 
-    def _embed_where(self, mask, images, other, chunk: int = 16):
-        """``where(mask, embed(images), other)`` per env, embedding only the masked rows.
+    def _step_envs(self, states, action):
+        """``vmap(AutoReset(env).step)``, same bits, but only the envs whose episode ended
+        generate and observe a fresh episode (AutoReset does so for every env, every step)."""
+        env = self.env
+        states, ts = jax.vmap(env.step)(states, action)
+        key, layout_key = jnp.moveaxis(jax.vmap(jax.random.split)(states.key), 1, 0)
+        done = ts.terminated | ts.truncated
 
-        Few envs end an episode on a given step, so the masked rows are embedded ``chunk`` at
-        a time in a ``while_loop`` (one pass in the common case, as many as needed when many
-        episodes end together). A frame's embedding does not depend on the other rows of its
-        batch, so the result is the same as embedding every row.
-        """
-        n = mask.shape[0]
-        chunk = min(chunk, n)
-        rank = jnp.cumsum(mask) - 1  # position of each masked row among the masked rows
-        rows = jnp.nonzero(mask, size=n + chunk, fill_value=0)[0]  # masked rows first; the
-        count = mask.sum()  # zero tail keeps every slice in range
+        @jax.vmap
+        def fresh(keys):
+            state = env.generate(keys[0]).replace(key=keys[1])
+            return state, env.observe(state)
 
-        def body(state):
-            start, out = state
-            take = lax.dynamic_slice_in_dim(rows, start, chunk)
-            emb = self._embed(images[take])
-            here = mask & (rank >= start) & (rank < start + chunk)
-            return start + chunk, jnp.where(
-                here[:, None], emb[jnp.clip(rank - start, 0, chunk - 1)], out
-            )
-
-        return lax.while_loop(lambda s: s[0] < count, body, (jnp.int32(0), other))[1]
+        old = (states.replace(key=key), ts.observation)
+        states, obs = masked_map(done, fresh, (layout_key, key), old)
+        info = {**ts.info, "final_observation": ts.observation}
+        return states, ts.replace(observation=obs, info=info)
 
     def _empty_frames(self, num_envs):
         pad = self._embed(jnp.zeros((1, self.env.view_size, self.env.view_size, 3), jnp.uint8))
@@ -397,7 +425,7 @@ class Learner(struct.PyTreeNode):
 
     # -- rollout ------------------------------------------------------------------------
     def _env_step(self, params, lang_table, carry: EnvCarry, key, penalty=None, novelty=None):
-        c, env = self.config, AutoReset(self.env)
+        c = self.config
         penalty = c.penalty if penalty is None else penalty
         novelty = c.novelty_bonus if novelty is None else novelty
         obs = carry.obs
@@ -406,7 +434,7 @@ class Learner(struct.PyTreeNode):
         )
         action = jax.random.categorical(key, logits)
         log_prob = jax.nn.log_softmax(logits)[jnp.arange(action.shape[0]), action]
-        states, ts = jax.vmap(env.step)(carry.state, action)
+        states, ts = self._step_envs(carry.state, action)
         done = ts.terminated | ts.truncated
         final = ts.info["final_observation"]
         violation = violation_of(ts)
@@ -420,7 +448,7 @@ class Learner(struct.PyTreeNode):
             # Append the returned observation: the final one where the episode goes on; where
             # it ended, the window restarts at the next episode's first observation, which
             # only those few envs embed.
-            emb = self._embed_where(done, ts.observation["image"], emb)
+            emb = masked_map(done, self._embed, ts.observation["image"], emb)
             frames = self._push(carry.frames, emb, done)
         signal = prob if c.soft_checker else alarm
         cost = jnp.zeros_like(ts.reward)
@@ -471,7 +499,9 @@ class Learner(struct.PyTreeNode):
             "novelty": bonus.sum(),
         }
         carry = EnvCarry(
-            state=states, obs=ts.observation, sentence=self._sentence(ts.observation),
+            state=states, obs=ts.observation,
+            # The constraint is fixed for an episode: look it up where one began.
+            sentence=masked_map(done, self._sentence, _pick(ts.observation), carry.sentence),
             frames=frames, visited=visited, ep_return=jnp.where(done, 0.0, ep_return),
             ep_length=jnp.where(done, 0, ep_length),
         )  # fmt: skip

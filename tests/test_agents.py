@@ -32,7 +32,7 @@ import jaxgrid
 from agents import runner as runner_mod
 from agents.evaluation import play_episodes, summarise
 from agents.networks import ActorCritic
-from agents.ppo import Learner, PPOConfig, make_learner, make_train
+from agents.ppo import Learner, PPOConfig, make_learner, make_train, masked_map
 from agents.runner import NonFiniteError, run
 from checker.model import CheckerConfig
 from checker.trained import TrainedChecker, new_checker
@@ -434,8 +434,9 @@ def test_checker_embedding_ring_buffer_matches_raw_frames(rollouts, tiny_checker
 
 
 def test_checker_embeds_only_the_masked_rows_with_the_same_bits(tiny_checker):
-    """``_embed_where`` (the first frames of new episodes) equals embedding every row and
-    selecting, bit for bit: no row, a few rows, more rows than one chunk, and under vmap."""
+    """``masked_map`` of the embedding (the first frames of new episodes) equals embedding
+    every row and selecting, bit for bit: no row, a few rows, more rows than one chunk, and
+    under vmap."""
     config = dataclasses.replace(TINY, num_envs=40, total_timesteps=40 * 8 * 4,
                                  reward_mode="checker")  # fmt: skip
     learner = make_learner(config, tiny_checker)
@@ -446,11 +447,40 @@ def test_checker_embeds_only_the_masked_rows_with_the_same_bits(tiny_checker):
     masks[1, [3, 17, 38]] = True
     masks[2, rng.permutation(40)[:37]] = True  # three chunks of 16
     dense = jax.jit(lambda m, i, o: jnp.where(m[:, None], learner._embed(i), o))
-    sparse = jax.jit(learner._embed_where)
+    sparse = jax.jit(functools.partial(masked_map, fn=learner._embed))
     for m, i, o in zip(masks, images, other, strict=True):
-        np.testing.assert_array_equal(sparse(m, i, o), dense(m, i, o))
-    batched = jax.jit(jax.vmap(learner._embed_where))(masks, images, other)
+        np.testing.assert_array_equal(sparse(m, inputs=i, other=o), dense(m, i, o))
+    batched = jax.jit(jax.vmap(lambda m, i, o: masked_map(m, learner._embed, i, o)))(
+        masks, images, other
+    )
     np.testing.assert_array_equal(batched, jax.vmap(dense)(masks, images, other))
+
+
+@pytest.mark.parametrize("env_id", ["TwoRooms-v0", "ThreeRoomsKey-v0"])
+def test_learner_env_step_equals_auto_reset(env_id):
+    """The learner's auto-reset (a fresh episode generated and observed only where one
+    ended) gives AutoReset's states and time steps bit for bit, through many resets, all
+    envs truncating together included."""
+    config = dataclasses.replace(TINY, env_id=env_id, num_envs=24, total_timesteps=24 * 8 * 4)
+    learner = make_learner(config)
+    env = AutoReset(learner.env)
+    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 24))
+
+    def run(step):
+        def body(carry, key):
+            actions = jax.random.randint(key, (24,), 0, env.num_actions)
+            new, ts = step(carry, actions)
+            return new, (new, ts)
+
+        keys = jax.random.split(jax.random.PRNGKey(1), env.max_steps + 40)
+        return lax.scan(body, states, keys)[1]
+
+    ours = fast_jit(lambda: run(learner._step_envs))()
+    reference = fast_jit(lambda: run(jax.vmap(env.step)))()
+    dones = np.asarray(ours[1].terminated | ours[1].truncated)
+    assert dones.sum(1).max() > 16 and dones.sum() >= 24  # several chunks at once; every env
+    for a, b in zip(leaves(ours), leaves(reference), strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_sentence_encoders_skip_the_pad_tail():
