@@ -208,26 +208,24 @@ def train_checker(
         train_ds, val_ds = dataset.split((1 - val_fraction, val_fraction), seed=seed)
     else:
         train_ds, val_ds = dataset, val_dataset
-    if counterfactuals and dataset.meta.get("lookahead", 1) > 1:
-        warnings.warn(
-            f"train_checker: no colour counterfactuals for lookahead "
-            f"{dataset.meta['lookahead']} > 1 (the relabelling would not be exact)",
-            stacklevel=2,
-        )
-    elif counterfactuals:
-        train_ds = with_colour_counterfactuals(train_ds, counterfactuals, seed=seed)
+    # Both augmentations keep labels exact only up to lookahead 1 (see their docstrings).
+    lookahead = dataset.meta.get("lookahead", 1)
+    for name, amount, augment, offset in (
+        ("colour counterfactuals", counterfactuals, with_colour_counterfactuals, 0),
+        ("distractors", distractors, with_distractors, 2),
+    ):
+        if not amount:
+            continue
+        if lookahead > 1:
+            warnings.warn(
+                f"train_checker: no {name} for lookahead {lookahead} > 1 "
+                "(the labels would not stay exact)",
+                stacklevel=2,
+            )
+            continue
+        train_ds = augment(train_ds, amount, seed=seed + offset)
         if val_ds is not None:
-            val_ds = with_colour_counterfactuals(val_ds, counterfactuals, seed=seed + 1)
-    if distractors and dataset.meta.get("lookahead", 1) > 1:
-        warnings.warn(
-            f"train_checker: no distractors for lookahead {dataset.meta['lookahead']} > 1 "
-            "(the labels would not stay exact)",
-            stacklevel=2,
-        )
-    elif distractors:
-        train_ds = with_distractors(train_ds, distractors, seed=seed + 2)
-        if val_ds is not None:
-            val_ds = with_distractors(val_ds, distractors, seed=seed + 3)
+            val_ds = augment(val_ds, amount, seed=seed + offset + 1)
     if len(train_ds) < batch_size:
         raise ValueError(
             f"train_checker: {len(train_ds)} training rows, fewer than batch_size={batch_size}"
