@@ -38,6 +38,10 @@ its own, the pieces are timed in ``min(--repeats, 5)`` interleaved rounds and ev
 For the baseline, ``baseline_breakdown`` has its seconds per update and NAVIX's bare env
 steps per update. The pieces use the learner's private functions: a profile, not an API.
 
+``--ops N`` adds ``ops``: the timed executable run twice under ``jax.profiler``, and the
+``N`` XLA kernels and the ``N`` places (pass and Flax module, e.g. ``backward:
+ActorCritic/cells``) that took the most of it, in ms per update (:mod:`benchmarks.xla_ops`).
+
 Progress goes to stderr; stdout has the JSON lines only. On a shared machine quote the
 ratios, not the absolute numbers, and mind the load (``load_avg_1m_at_start``): measured on
 2 cores, the baseline's large multi-threaded matmuls slowed down about 2x when another
@@ -384,6 +388,13 @@ def _parser() -> argparse.ArgumentParser:
         "--profile", action="store_true", help="add a per-update time breakdown to each line"
     )
     p.add_argument(
+        "--ops",
+        type=int,
+        default=0,
+        metavar="N",
+        help="add the N costliest XLA kernels and model places of an update (profiler trace)",
+    )
+    p.add_argument(
         "--mlp",
         action="store_true",
         help="time the policy without its convolution (PPOConfig.conv_channels=())",
@@ -398,6 +409,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     for name in ("timesteps", "num_envs", "num_steps", "epochs", "minibatches", "repeats"):
         if getattr(args, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.ops < 0:
+        p.error(f"--ops must be >= 0, got {args.ops}")
     if args.num_envs % args.minibatches:
         p.error(f"--minibatches ({args.minibatches}) must divide --num-envs ({args.num_envs})")
     import jaxgrid
@@ -502,6 +515,16 @@ def main(argv=None) -> list[dict[str, Any]]:
                 line["breakdown"] = {"error": f"{type(e).__name__}: {e}"}
             if base_profile is not None:
                 line["baseline_breakdown"] = base_profile
+        if args.ops:
+            from benchmarks.xla_ops import profile_ops
+
+            _log(f"tracing mode {mode} ...")
+            try:
+                line["ops"] = profile_ops(
+                    ours.run, ours.compiled.as_text(), 2, ours.updates, args.ops
+                )
+            except RuntimeError as e:  # no trace, or one naming no instruction
+                line["ops"] = {"error": str(e)}
         lines.append(line)
         print(json.dumps(line), flush=True)
 

@@ -21,7 +21,7 @@ TINY = [
 
 def test_tiny_run_prints_one_json_line_per_mode(tmp_path, capsys):
     out = tmp_path / "results" / "speed.json"
-    lines = train_speed.main(TINY + ["--out", str(out)])
+    lines = train_speed.main(TINY + ["--out", str(out), "--ops", "4"])
     captured = capsys.readouterr()
     printed = [json.loads(s) for s in captured.out.splitlines()]
     assert printed == lines
@@ -41,6 +41,17 @@ def test_tiny_run_prints_one_json_line_per_mode(tmp_path, capsys):
         assert "baseline_sps" not in line and "ratio" not in line
     assert "train_speed:" in captured.err  # progress goes to stderr
     assert all(line["network"] == "conv" for line in lines)
+    # --ops: the costliest kernels and places of an update, from a profiler trace.
+    for line in lines:
+        ops = line["ops"]
+        assert "error" not in ops, ops
+        assert len(ops["ops"]) == len(ops["groups"]) == 4 and ops["traced_ms_per_unit"] > 0
+        for rows in (ops["ops"], ops["groups"]):
+            ms = [r["ms_per_unit"] for r in rows]
+            assert ms == sorted(ms, reverse=True) and ms[-1] >= 0
+            assert 0 < sum(r["share"] for r in rows) <= 1.0 + 1e-6
+        places = " ".join(r["where"] for r in ops["groups"])
+        assert "ActorCritic" in places  # Flax module names reach the profile
 
 
 def test_mlp_flag_times_the_policy_without_convolution(monkeypatch):
@@ -64,6 +75,7 @@ def test_mlp_flag_times_the_policy_without_convolution(monkeypatch):
         ["--num-envs", "0"],
         ["--num-envs", "6", "--minibatches", "4"],
         ["--repeats", "-1"],
+        ["--ops", "-2"],
         ["--timesteps", "many"],
         ["--env", "NoSuchEnv-v0"],
     ],
@@ -88,3 +100,24 @@ def test_tiny_run_with_baseline_and_profile():
         assert math.isfinite(parts[key]) and parts[key] > 0
     assert math.isfinite(parts["checker_s"])  # a difference of two timings: may be < 0
     assert line["baseline_breakdown"]["env_step_s"] > 0
+
+
+@pytest.mark.parametrize(
+    "op_name, where",
+    [
+        ("jit(run)/while/body/closed_call/transpose(jvp(ActorCritic))/cells/dot_general",
+         "backward: ActorCritic/cells"),
+        ("jit(run)/while/body/closed_call/jvp(ActorCritic)/jit(relu)/max",
+         "loss forward: ActorCritic"),
+        ("jit(run)/while/body/closed_call/jit(argsort)/sort", "outside the loss: argsort"),
+        ("jit(run)/while/body/Checker.embed_states/cell_conv/conv_general_dilated",
+         "outside the loss: Checker.embed_states/cell_conv"),
+        ("jit(run)/while/body/add", "outside the loss: (no module)"),
+    ],
+)  # fmt: skip
+def test_op_places_name_the_pass_and_the_module(op_name, where):
+    from benchmarks.xla_ops import describe, instruction_sources
+
+    assert describe(op_name) == where
+    hlo = f'  %dot.8 = f32[20,8]{{1,0}} dot(%a, %b), metadata={{op_name="{op_name}"}}'
+    assert instruction_sources(hlo) == {"dot.8": op_name}
