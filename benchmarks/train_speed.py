@@ -46,7 +46,7 @@ Progress goes to stderr; stdout has the JSON lines only. On a shared machine quo
 ratios, not the absolute numbers, and mind the load (``load_avg_1m_at_start``): measured on
 2 cores, the baseline's large multi-threaded matmuls slowed down about 2x when another
 process took a core, ours (many small ops) barely, so contention raises the ratio (none:
-0.55 on a quiet machine in ``benchmarks/results/train_speed_cpu.json``, about 0.7 when
+0.62 on a quiet machine in ``benchmarks/results/train_speed_cpu.json``, about 0.7 when
 contended). ``taskset -c 0 python -m
 benchmarks.train_speed`` pins both to one core for a steadier comparison.
 """
