@@ -283,7 +283,8 @@ def masked_map(mask: jax.Array, fn, inputs, other, chunk: int = 16):
     ``chunk`` at a time in a ``while_loop``: one pass in the common case, as many as needed
     when many episodes end together (also under ``vmap``). For row-wise ``fn`` whose rows do
     not depend on the rest of the batch (env resets, the checker's frame embedding) the result
-    has the same bits as computing every row.
+    has the same bits as computing every row; a matmul's rows (the truncation bootstrap's
+    values) may round differently in the last place for another number of rows.
     """
     n = mask.shape[0]
     chunk = min(chunk, n)
@@ -624,7 +625,6 @@ class Learner(struct.PyTreeNode):
 
         def epoch(carry, k):
             params, opt_state = carry
-            # One sort of random bits: cheaper on CPU than permutation's rounds of sorts.
             perm = shuffle(k, c.batch_size)
             shuffled = jax.tree.map(
                 lambda x: x[perm].reshape((c.num_minibatches, -1) + x.shape[1:]), flat
