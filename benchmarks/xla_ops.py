@@ -31,7 +31,7 @@ from collections.abc import Callable
 import jax
 
 _INSTRUCTION = re.compile(r'^\s*(?:ROOT\s+)?%?([\w.\-]+)\s*=.*?op_name="([^"]*)"', re.MULTILINE)
-# Tracing prefixes that say nothing about the model: jit/while/scan/call plumbing.
+# Name-stack parts that say nothing about the model: loop and call plumbing.
 _PLUMBING = re.compile(r"^(?:while|body|cond|closed_call|checkpoint|all)$")
 
 

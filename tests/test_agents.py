@@ -326,7 +326,8 @@ def test_shuffle_spreads_every_item_evenly_over_minibatches():
     np.put_along_axis(where, perms, np.arange(64)[None] // 16, axis=1)  # item -> minibatch
     counts = np.stack([(where == m).sum(0) for m in range(4)])  # (minibatch, item)
     assert np.abs(counts - 1000).max() < 5 * 27
-    # Neighbouring indices are not kept together (as a tie-broken-by-index bias would).
+    # Neighbouring indices are not kept together (as if the index, not the random bits,
+    # ordered the sort).
     together = (where[:, :-1] == where[:, 1:]).mean()
     assert abs(together - 15 / 63) < 0.02
 
