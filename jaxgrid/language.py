@@ -416,7 +416,7 @@ def detokenize(ids: Any) -> str:
 # --------------------------------------------------------------------------------------
 
 
-def _is_heldout(template_id: int, colour: str) -> bool:
+def is_heldout(template_id: int, colour: str) -> bool:
     return (TEMPLATES[template_id].door_clause, colour) in HELDOUT_DOOR_PHRASES
 
 
@@ -436,7 +436,7 @@ def split_combinations(split: str, include_lava: bool = True) -> list[tuple[int,
         if t.has_lava and not include_lava:
             continue
         for c in DOOR_COLOURS:
-            held = _is_heldout(t.id, c)
+            held = is_heldout(t.id, c)
             if split == "all" or (split == "heldout") == held:
                 out.append((t.id, c))
     return out

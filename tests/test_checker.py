@@ -514,7 +514,7 @@ def test_colour_counterfactuals_relabel_door_positives(toy):
         c = language.parse(language.detokenize(np.frombuffer(t, np.int32)))
         assert lab == 0 and w in positive_windows
         assert c.colour != colour_of[int(window[-1, 2, 3, 1])]
-        assert not language._is_heldout(c.template_id, c.colour)
+        assert not language.is_heldout(c.template_id, c.colour)
     bad = train.subset(np.arange(len(train)))
     bad.meta["lookahead"] = 2
     with pytest.raises(ValueError, match="lookahead"):

@@ -334,7 +334,7 @@ def test_split_controls_the_combinations(name, split):
     assert seen <= allowed
     if split == "train":
         assert len(seen) > 0.8 * len(allowed)  # and it covers the split
-    held = {(t, col) for t, col in allowed if language._is_heldout(t, col)}
+    held = {(t, col) for t, col in allowed if language.is_heldout(t, col)}
     assert held == (allowed if split == "heldout" else set())
 
 
