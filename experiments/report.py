@@ -1,8 +1,10 @@
-"""Reporting layer of the paper-reproduction experiments (issue 6, DESIGN.md §7).
+"""Reporting of the paper-reproduction experiments: the ``results.json`` contract, statistics
+over seeds, the learning-curve figure, the Markdown table and the console summary.
 
-Pure numpy + matplotlib: importing this module needs neither JAX nor scipy, and matplotlib is
-only imported inside :func:`plot_curves` (through :class:`matplotlib.figure.Figure` and the Agg
-canvas, never ``pyplot``, so no global backend or figure state is touched).
+matplotlib and ``scipy.stats`` are imported only inside the functions that need them (their
+imports cost about a second each), and the figure goes through
+:class:`matplotlib.figure.Figure` and the Agg canvas, never ``pyplot``, so no global backend or
+figure state is touched.
 
 Contents
 
@@ -27,16 +29,16 @@ allowed and passed through untouched):
 from __future__ import annotations
 
 import io
-import json
 import math
 import numbers
 import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+
+from jaxgrid.io import atomic_write, write_json
 
 __all__ = [
     "CHECKER_METRICS",
@@ -60,7 +62,9 @@ __all__ = [
 # Schema
 # ----------------------------------------------------------------------------------------------
 
-#: Reward/cost modes in their canonical display order (DESIGN.md §7).
+#: The reward/cost modes (the same set as ``agents.config.REWARD_MODES``, a tested equality) in
+#: display order: the paper's method first, then its baselines. ``REWARD_MODES`` has an order
+#: of its own, so tables and figures take theirs from here.
 MODES: tuple[str, ...] = ("checker", "shaped", "none", "lagrangian")
 
 #: One fixed colour per mode, shared by every figure.
@@ -266,87 +270,20 @@ def validate_results(results: dict) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
-def _betacf(a: float, b: float, x: float) -> float:
-    """Continued fraction of the incomplete beta (modified Lentz; Numerical Recipes §6.4)."""
-    tiny = 1e-300
-    qab, qap, qam = a + b, a + 1.0, a - 1.0
-    c, d = 1.0, 1.0 - qab * x / qap
-    d = 1.0 / (d if abs(d) > tiny else tiny)
-    h = d
-    for m in range(1, 100_000):
-        m2 = 2 * m
-        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
-        d = 1.0 + aa * d
-        d = 1.0 / (d if abs(d) > tiny else tiny)
-        c = 1.0 + aa / c
-        c = c if abs(c) > tiny else tiny
-        h *= d * c
-        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
-        d = 1.0 + aa * d
-        d = 1.0 / (d if abs(d) > tiny else tiny)
-        c = 1.0 + aa / c
-        c = c if abs(c) > tiny else tiny
-        delta = d * c
-        h *= delta
-        if abs(delta - 1.0) < 1e-15:
-            break
-    return h
-
-
-def _betainc(a: float, b: float, x: float) -> float:
-    """Regularized incomplete beta function I_x(a, b) for a, b > 0 and x in [0, 1]."""
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    log_front = (
-        math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
-    )
-    front = math.exp(log_front)
-    if x < (a + 1.0) / (a + b + 2.0):
-        return front * _betacf(a, b, x) / a
-    return 1.0 - front * _betacf(b, a, 1.0 - x) / b
-
-
-def _t_sf(t: float, df: float) -> float:
-    """Upper tail P(T > t) of Student's t with ``df`` degrees of freedom, for t >= 0."""
-    if math.isinf(df):
-        return 0.5 * math.erfc(t / math.sqrt(2.0))
-    return 0.5 * _betainc(df / 2.0, 0.5, df / (df + t * t))
-
-
 def t_quantile(p: float, df: float) -> float:
-    """Quantile (inverse CDF) of Student's t distribution, without scipy.
+    """Quantile (inverse CDF) of Student's t distribution: ``P(T <= t_quantile(p, df)) = p``.
 
-    ``P(T <= t_quantile(p, df)) = p``. The CDF is evaluated exactly through the regularized
-    incomplete beta function, ``P(T > t) = I_{df/(df+t^2)}(df/2, 1/2) / 2`` (continued fraction,
-    Numerical Recipes §6.4), and inverted by bisection to ~1e-12 relative accuracy; any real
-    ``df > 0`` works, and ``df = inf`` gives the normal quantile. E.g. ``t_quantile(0.975, 4)``
-    = 2.7764, ``t_quantile(0.975, inf)`` = 1.9600.
+    Any real ``df > 0`` works, and ``df = inf`` gives the normal quantile. E.g.
+    ``t_quantile(0.975, 4)`` = 2.7764, ``t_quantile(0.975, inf)`` = 1.9600. Bad ``p`` or ``df``
+    raise ``ValueError`` naming the argument.
     """
     if not 0.0 < p < 1.0:
         raise ValueError(f"p: expected a probability in (0, 1), got {p!r}")
     if not df > 0:
         raise ValueError(f"df: expected df > 0, got {df!r}")
-    if p == 0.5:
-        return 0.0
-    if p < 0.5:
-        return -t_quantile(1.0 - p, df)
-    tail = 1.0 - p
-    lo, hi = 0.0, 1.0
-    while _t_sf(hi, df) > tail:  # bracket the root; sf is decreasing in t
-        lo, hi = hi, hi * 2.0
-        if hi > 1e300:
-            return math.inf
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if _t_sf(mid, df) > tail:
-            lo = mid
-        else:
-            hi = mid
-        if hi - lo <= 1e-13 * hi:
-            break
-    return 0.5 * (lo + hi)
+    from scipy import stats
+
+    return float(stats.t.ppf(p, df))
 
 
 def mean_ci(values: Any, axis: int = 0, confidence: float = 0.95) -> tuple[Any, Any, Any]:
@@ -414,23 +351,6 @@ def curves_from_results(results: Mapping) -> dict[str, dict[str, np.ndarray]]:
     return out
 
 
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
 def plot_curves(
     per_seed_curves: Mapping[str, Mapping[str, Any]],
     path: str | os.PathLike,
@@ -492,7 +412,7 @@ def plot_curves(
         fig.suptitle(title)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    _atomic_write_bytes(path, buf.getvalue())
+    atomic_write(path, buf.getvalue())
     return path
 
 
@@ -554,26 +474,6 @@ def results_table(results: Mapping) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _jsonable(x: Any) -> Any:
-    """Numpy -> Python, tuples -> lists, non-finite floats -> None (strict JSON)."""
-    if isinstance(x, Mapping):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, bool | np.bool_):
-        return bool(x)
-    if isinstance(x, numbers.Integral):
-        return int(x)
-    if isinstance(x, numbers.Real):
-        f = float(x)
-        return f if math.isfinite(f) else None
-    if isinstance(x, os.PathLike):
-        return os.fspath(x)
-    return x
-
-
 class ReportPaths(NamedTuple):
     """Files written by :func:`write_report`."""
 
@@ -592,21 +492,20 @@ def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
     """Validate ``results`` then atomically write ``results.json`` and ``results.md``.
 
     Raises ``ValueError`` (see :func:`validate_results`) before touching the filesystem when
-    ``results`` is invalid. Numpy values are converted, NaN/inf extras become null. Each file
-    goes to a temporary file in ``out_dir`` and is moved in place with ``os.replace``, so a
-    reader never sees a partial file. Returns ``ReportPaths(json, md)``.
+    ``results`` is invalid. Numpy values are converted, NaN/inf extras become null
+    (:func:`jaxgrid.io.write_json`). Each file is written atomically, so a reader never sees a
+    partial file. Returns ``ReportPaths(json, md)``.
     """
     validate_results(results)
     out = Path(out_dir)
-    text = json.dumps(_jsonable(results), indent=2, allow_nan=False) + "\n"
     md = (
         f"# Results: {results['experiment']}\n\n"
         + results_table(results)
         + f"\nTotal wall time: {_format_duration(float(results['timing']['total_s']))}.\n"
     )
     json_path, md_path = out / "results.json", out / "results.md"
-    _atomic_write_bytes(json_path, text.encode("utf-8"))
-    _atomic_write_bytes(md_path, md.encode("utf-8"))
+    write_json(json_path, results)
+    atomic_write(md_path, md)
     return ReportPaths(json_path, md_path)
 
 
