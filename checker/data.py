@@ -1,4 +1,4 @@
-"""Auto-labelled checker data, collected fully on device (DESIGN.md §6).
+"""Auto-labelled checker data, collected fully on device.
 
 Rollouts
 --------
@@ -61,8 +61,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
+import io
 import os
+import zipfile
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -75,6 +76,7 @@ from checker.reward import init_buffer, push
 from checker.trained import check_vocab
 from jaxgrid import language
 from jaxgrid.constants import BALL, BOX, CLOSED, COLOR_NAMES, DOOR, EMPTY, KEY, LOCKED
+from jaxgrid.io import atomic_write, read_json, write_json
 from jaxgrid.wrappers import AutoReset
 
 __all__ = [
@@ -219,40 +221,39 @@ class CheckerDataset:
     def save(self, path: str | os.PathLike) -> tuple[str, str]:
         """Write ``<path>.npz`` (arrays) and ``<path>.json`` (metadata); returns both paths."""
         npz, js = self._paths(path)
-        os.makedirs(os.path.dirname(os.path.abspath(npz)), exist_ok=True)
         arrays = {name: getattr(self, name) for name in _CORE}
         arrays.update({f"extra_{k}": v for k, v in self.extras.items()})
-        np.savez_compressed(npz, **arrays)
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **arrays)
+        atomic_write(npz, buf.getvalue())
         meta = {
             "format_version": FORMAT_VERSION,
             **self.meta,
             "vocab": list(language.VOCAB),
             "max_len": language.MAX_LEN,
         }
-        with open(js, "w") as f:
-            json.dump(meta, f, indent=2)
+        write_json(js, meta)
         return npz, js
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> CheckerDataset:
         """Read a dataset written by :meth:`save` (``path`` with or without extension).
 
-        ``FileNotFoundError`` names a missing file; ``ValueError`` if it was made for another
-        vocabulary or ``MAX_LEN``.
+        ``FileNotFoundError`` names a missing file; ``ValueError`` names the file if it was made
+        for another vocabulary or ``MAX_LEN``, or is damaged.
         """
         npz, js = cls._paths(path)
         for p in (js, npz):
             if not os.path.isfile(p):
                 raise FileNotFoundError(f"checker dataset file not found: {p}")
-        with open(js) as f:
-            try:
-                meta = json.load(f)
-            except json.JSONDecodeError as e:
-                raise ValueError(f"{js} is not valid JSON: {e}") from e
+        meta = read_json(js)
         check_vocab(meta, f"dataset {js}")
-        with np.load(npz, allow_pickle=False) as z:
-            arrays = {name: z[name] for name in _CORE}
-            extras = {k[len("extra_") :]: z[k] for k in z.files if k.startswith("extra_")}
+        try:
+            with np.load(npz, allow_pickle=False) as z:
+                arrays = {name: z[name] for name in _CORE}
+                extras = {k[len("extra_") :]: z[k] for k in z.files if k.startswith("extra_")}
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as e:
+            raise ValueError(f"{npz}: damaged dataset file ({type(e).__name__}: {e})") from e
         meta = {k: v for k, v in meta.items() if k not in ("vocab", "max_len", "format_version")}
         return cls(**arrays, extras=extras, meta=meta)
 

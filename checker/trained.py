@@ -9,7 +9,6 @@ sentence length, since token ids would then mean other words.
 
 from __future__ import annotations
 
-import json
 import os
 from typing import Any
 
@@ -19,6 +18,7 @@ from flax import serialization, struct
 
 from checker.model import Checker, CheckerConfig, init_params, params_shape
 from jaxgrid import language
+from jaxgrid.io import atomic_write, read_json, write_json
 
 PARAMS_FILE = "params.msgpack"
 CONFIG_FILE = "config.json"
@@ -95,12 +95,13 @@ def check_vocab(meta: dict, where: str) -> None:
 
 
 def save(trained: TrainedChecker, directory: str | os.PathLike) -> str:
-    """Write ``params.msgpack`` and ``config.json`` under ``directory`` (created if needed)."""
+    """Write ``params.msgpack`` and ``config.json`` under ``directory`` (created if needed).
+
+    Each file is written atomically, parameters first: a reader never sees half a file.
+    """
     directory = os.fspath(directory)
-    os.makedirs(directory, exist_ok=True)
     params = jax.device_get(trained.params)
-    with open(os.path.join(directory, PARAMS_FILE), "wb") as f:
-        f.write(serialization.to_bytes(params))
+    atomic_write(os.path.join(directory, PARAMS_FILE), serialization.to_bytes(params))
     meta = {
         "format_version": FORMAT_VERSION,
         "config": trained.config.to_dict(),
@@ -109,16 +110,15 @@ def save(trained: TrainedChecker, directory: str | os.PathLike) -> str:
         "threshold": trained.threshold,
         **_vocab_meta(),
     }
-    with open(os.path.join(directory, CONFIG_FILE), "w") as f:
-        json.dump(meta, f, indent=2)
+    write_json(os.path.join(directory, CONFIG_FILE), meta)
     return directory
 
 
 def load(directory: str | os.PathLike) -> TrainedChecker:
     """Restore a :class:`TrainedChecker` written by :func:`save`, ready to use.
 
-    Raises ``FileNotFoundError`` naming the missing path, ``ValueError`` for a checker made for
-    another vocabulary or ``MAX_LEN`` (or an unreadable config).
+    Raises ``FileNotFoundError`` naming the missing path, ``ValueError`` naming the file for a
+    checker made for another vocabulary or ``MAX_LEN``, or a damaged file.
     """
     directory = os.fspath(directory)
     if not os.path.isdir(directory):
@@ -128,15 +128,15 @@ def load(directory: str | os.PathLike) -> TrainedChecker:
     for p in (cfg_path, params_path):
         if not os.path.isfile(p):
             raise FileNotFoundError(f"checker file not found: {p}")
-    with open(cfg_path) as f:
-        try:
-            meta = json.load(f)
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{cfg_path} is not valid JSON: {e}") from e
+    meta = read_json(cfg_path)
     check_vocab(meta, f"checker {directory}")
     config = CheckerConfig.from_dict(meta["config"])
     with open(params_path, "rb") as f:
-        state = serialization.msgpack_restore(f.read())
+        data = f.read()
+    try:
+        state = serialization.msgpack_restore(data)
+    except Exception as e:  # msgpack's errors share no base class with a clear message
+        raise ValueError(f"{params_path}: damaged parameter file ({type(e).__name__}: {e})") from e
     template = params_shape(config)
     params = serialization.from_state_dict(template, state)
     want = jax.tree.map(lambda s: (s.shape, s.dtype), template)
