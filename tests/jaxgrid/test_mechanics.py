@@ -13,9 +13,9 @@ import functools
 import chex
 import jax
 import jax.numpy as jnp
-import minigrid_reference as R  # tests/ is on sys.path (pytest's default import mode)
 import numpy as np
 import pytest
+from helpers import minigrid_reference as R
 from minigrid.core.grid import Grid
 from minigrid.core.world_object import Ball, Box, Key, Wall, WorldObj
 

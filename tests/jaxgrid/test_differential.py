@@ -4,7 +4,8 @@ For each level, MiniGrid is reset with many seeds, converted with ``jaxgrid.comp
 and both are stepped with the same biased random actions; after every step we compare the
 observation image, direction, reward (within 1e-6), terminated, truncated, the full grid
 encoding, the agent's position and the carried object, up to MiniGrid's episode end. See
-``tests/minigrid_reference.py`` for the machinery (one jitted ``vmap(lax.scan)`` per level).
+``tests/helpers/minigrid_reference.py`` for the machinery (one jitted ``vmap(lax.scan)`` per
+level).
 
 Levels whose ``step`` overrides ``MiniGridEnv.step`` (KeyCorridor, BlockedUnlockPickup,
 UnlockPickup, ObstructedMaze, RedBlueDoors) only add a level-specific reward/termination on top
@@ -17,9 +18,9 @@ from __future__ import annotations
 import zlib
 
 import jax
-import minigrid_reference as R  # tests/ is on sys.path (pytest's default import mode)
 import numpy as np
 import pytest
+from helpers import minigrid_reference as R
 from minigrid.core.world_object import Ball, Box, Key
 
 import jaxgrid

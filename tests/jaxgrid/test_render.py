@@ -16,7 +16,7 @@ from jaxgrid.ascii import parse_ascii
 from jaxgrid.render import render, render_ansi, render_view, tile_atlas
 from jaxgrid.video import VIOLATION_RGB, caption_frames, record_episodes
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 render_jit = jax.jit(render, static_argnums=1, static_argnames=("tile_size", "highlight"))
 render_view_jit = jax.jit(render_view, static_argnums=(1, 2, 3))
 

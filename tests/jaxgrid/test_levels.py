@@ -16,9 +16,9 @@ one key on the agent's side and not under the agent, lava strip).
 from __future__ import annotations
 
 import jax
-import minigrid_reference as R  # tests/ is on sys.path (pytest's default import mode)
 import numpy as np
 import pytest
+from helpers import minigrid_reference as R
 from minigrid.core.mission import MissionSpace
 from minigrid.envs.doorkey import DoorKeyEnv
 from minigrid.minigrid_env import MiniGridEnv

@@ -1,0 +1,216 @@
+"""checker.data: labels against an independent monitor of the same rollout, balanced collection,
+save/load and splits, label-preserving augmentations (colour counterfactuals, distractors), and
+clear errors for bad collection arguments."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import jax
+import numpy as np
+import pytest
+from helpers.checker_cases import ENVS, SEEK, STEPS, expected_labels
+
+import checker
+import jaxgrid
+from checker import CheckerDataset, NoisyOracleParams, noisy_oracle_policy
+from checker.data import compute_labels
+from jaxgrid import language
+from jaxgrid.constants import DOOR
+
+# ----------------------------------------------------------------------------------- labels
+
+
+def test_monitor_replay_matches_info(replay):
+    """Our replay's independent door check agrees with info["violation"] of the scenario."""
+    v, m, s = replay["violation"], replay["monitor"], replay["start"]
+    np.testing.assert_array_equal(v & ~s, m)
+    assert m.sum() >= 3, "the seek-mode oracle should violate in this rollout"
+
+
+@pytest.mark.parametrize("k", [0, 1, 2])
+def test_labels_match_monitor(episodes, replay, k):
+    ds = episodes[k]
+    exp = expected_labels(replay["start"], replay["violation"], k)
+    assert len(ds) == len(exp) == ENVS * (STEPS + 1 - k)
+    pos, env_i = ds.extras["position"], ds.extras["env_index"]
+    got = {(int(p), int(e)): bool(lab) for p, e, lab in zip(pos, env_i, ds.labels, strict=True)}
+    assert got == exp
+    # Rows are the same positions as the replay: the newest frame is the replay's image.
+    np.testing.assert_array_equal(ds.windows[:, -1], replay["image"][pos, env_i])
+
+
+def test_labels_exact_steps(episodes, replay):
+    """Each violating step t labels the window ending at obs_t (k=0) and obs_{t-1} (k=1)."""
+    viol_pos = np.argwhere(replay["monitor"])
+    assert len(viol_pos)
+    for k, offset in ((0, 0), (1, 1)):
+        ds = episodes[k]
+        pos, env_i = ds.extras["position"], ds.extras["env_index"]
+        rows = {(int(p), int(e)): bool(x) for p, e, x in zip(pos, env_i, ds.labels, strict=True)}
+        for i, e in viol_pos:
+            assert rows[int(i) - offset, int(e)], (k, i, e)
+        # No other positives: one window per violating step (no two violations adjacent here).
+        assert sum(rows.values()) == int(replay["violation"][1:].sum() if k else len(viol_pos))
+
+
+def test_compute_labels_terminal_and_boundaries():
+    # One env, positions 0..7. Episode A = 0..3 (its final step 4 enters lava: a terminal
+    # violation, recorded at position 4, which already starts episode B); B = 4..7 with a
+    # door violation on step into position 6.
+    start = np.array([1, 0, 0, 0, 1, 0, 0, 0], bool)[:, None]
+    viol = np.array([0, 0, 0, 0, 1, 0, 1, 0], bool)[:, None]
+    lab1, el1 = compute_labels(start, viol, 1)
+    np.testing.assert_array_equal(np.asarray(lab1[:, 0]), [0, 0, 0, 1, 0, 1, 0, 0])
+    np.testing.assert_array_equal(np.asarray(el1[:, 0]), [1] * 7 + [0])
+    lab0, el0 = compute_labels(start, viol, 0)
+    # k=0: the terminal violation has no window of its own (position 4 is B's first obs).
+    np.testing.assert_array_equal(np.asarray(lab0[:, 0]), [0, 0, 0, 0, 0, 0, 1, 0])
+    assert bool(np.all(el0))
+    lab2, el2 = compute_labels(start, viol, 2)
+    # Position 3 sees step 4 (A's last); position 2 too; position 3 must not see step 5 (B).
+    np.testing.assert_array_equal(np.asarray(lab2[:, 0]), [0, 0, 1, 1, 1, 1, 0, 0])
+    np.testing.assert_array_equal(np.asarray(el2[:, 0]), [1] * 6 + [0, 0])
+    # A violation right after a reset never labels the previous episode's windows.
+    start = np.array([1, 0, 1, 0], bool)[:, None]
+    viol = np.array([0, 0, 0, 1], bool)[:, None]
+    lab2, _ = compute_labels(start, viol, 2)
+    np.testing.assert_array_equal(np.asarray(lab2[:2, 0]), [0, 0])  # 1 would cross into ep 2
+
+
+# ------------------------------------------------------------------------------- collection
+
+
+def test_collect_balanced(env):
+    ds = checker.collect(
+        env, noisy_oracle_policy, SEEK, jax.random.PRNGKey(5), 40, window=4, lookahead=1,
+        num_envs=ENVS, chunk_steps=STEPS,
+    )  # fmt: skip
+    assert len(ds) == 40 and ds.labels.sum() == 20
+    assert ds.windows.shape == (40, 4, 5, 5, 3) and ds.windows.dtype == np.uint8
+    assert ds.tokens.shape == (40, language.MAX_LEN) and ds.tokens.dtype == np.int32
+    assert 0 < ds.meta["natural_positive_rate"] < 0.5
+    assert ds.meta["num_positive"] == 20 and ds.meta["split"] == "train"
+    for tok, tid in zip(ds.tokens, ds.template_id, strict=True):  # tokens and template agree
+        assert language.parse(language.detokenize(tok)).template_id == tid
+    assert set(ds.scenario) == {"TwoRooms"}
+
+
+def test_dataset_save_load_split(tmp_path, episodes):
+    ds = episodes[1]
+    npz, js = ds.save(tmp_path / "d")
+    back = CheckerDataset.load(tmp_path / "d.npz")
+    for name in ("windows", "tokens", "labels", "template_id", "constraint_type", "scenario"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(ds, name))
+    for name, arr in ds.extras.items():
+        np.testing.assert_array_equal(back.extras[name], arr)
+    assert back.meta["lookahead"] == 1 and back.meta["env_id"] == ds.meta["env_id"]
+    parts = ds.split((0.5, 0.5), seed=1)  # by episode for full-episode data
+    assert sum(len(p) for p in parts) == len(ds)
+    assert not set(parts[0].extras["episode"]) & set(parts[1].extras["episode"])
+
+
+@pytest.mark.parametrize(
+    "window, lookahead, field",
+    [(0, 1, "window"), (65, 1, "window"), (5, -1, "lookahead"), (2, 9, "lookahead"),
+     (2.0, 1, "window"), (5, True, "lookahead")],
+)  # fmt: skip
+def test_collect_rejects_bad_window_and_lookahead(env, window, lookahead, field):
+    with pytest.raises(ValueError, match=f"^{field}"):
+        checker.collect(env, noisy_oracle_policy, SEEK, jax.random.PRNGKey(0), 10, window,
+                        lookahead)  # fmt: skip
+
+
+def test_collect_rejects_bad_args():
+    with pytest.raises(ValueError, match="num_samples"):
+        checker.collect(jaxgrid.make("TwoRooms-v0"), noisy_oracle_policy, SEEK,
+                        jax.random.PRNGKey(0), 0)  # fmt: skip
+    with pytest.raises(ValueError, match="constrained scenario"):
+        checker.collect(jaxgrid.make("MiniGrid-Empty-5x5-v0"), checker.random_policy, None,
+                        jax.random.PRNGKey(0), 10)  # fmt: skip
+    with pytest.raises(ValueError, match="ignore_prob"):
+        NoisyOracleParams(ignore_prob=1.5)
+
+
+# ---------------------------------------------------------------------------- augmentations
+
+
+def test_colour_counterfactuals_relabel_door_positives(toy):
+    """Each door-only positive gains one recoloured copy labelled 0, never a held-out phrase."""
+    train, _ = toy
+    train = train.subset(np.arange(len(train)))
+    train.meta["split"] = "train"
+    out = checker.with_colour_counterfactuals(train, per_positive=1, seed=3)
+    lava_free = np.array([not t.has_lava for t in language.TEMPLATES])
+    door_pos = int(np.sum((train.labels > 0) & lava_free[train.template_id]))
+    assert door_pos > 0 and len(out) == len(train) + door_pos
+    assert out.meta["counterfactual_negatives"] == door_pos
+    assert int(out.labels.sum()) == int(train.labels.sum())
+
+    # The original rows are all still there; each new row is a positive's window with a
+    # sentence naming another colour than the door the toy's label looks at: a true negative.
+    def as_rows(ds):
+        return Counter(zip(map(bytes, ds.windows), map(bytes, ds.tokens), ds.labels, strict=True))
+
+    rows = as_rows(out)
+    rows.subtract(as_rows(train))
+    assert all(n >= 0 for n in rows.values()) and sum(rows.values()) == door_pos
+    positive_windows = {bytes(w) for w, lab in zip(train.windows, train.labels, strict=True) if lab}
+    colour_of = {i: language.COLOURS[i] for i in range(len(language.COLOURS))}
+    for (w, t, lab), n in rows.items():
+        if n == 0:
+            continue
+        window = np.frombuffer(w, np.uint8).reshape(train.windows.shape[1:])
+        c = language.parse(language.detokenize(np.frombuffer(t, np.int32)))
+        assert lab == 0 and w in positive_windows
+        assert c.colour != colour_of[int(window[-1, 2, 3, 1])]
+        assert not language.is_heldout(c.template_id, c.colour)
+    bad = train.subset(np.arange(len(train)))
+    bad.meta["lookahead"] = 2
+    with pytest.raises(ValueError, match="lookahead"):
+        checker.with_colour_counterfactuals(bad)
+    with pytest.raises(ValueError, match="per_positive"):
+        checker.with_colour_counterfactuals(train, per_positive=-1)
+
+
+def test_distractors_only_touch_empty_cells_and_closed_doors(toy):
+    """Copies keep their labels and sentences; only empty cells (now keys, balls or boxes),
+    the agent's empty hands and closed doors (now locked) change; bad arguments fail."""
+    train, _ = toy
+    train = train.subset(np.arange(len(train)))
+    train.windows[::3, :, 2, 3, 2] = np.where(train.windows[::3, :, 2, 3, 0] == DOOR, 1, 0)
+    train.extras["origin"] = np.arange(len(train))  # travels with each copy
+    out = checker.with_distractors(train, fraction=0.5, cell_rate=0.3, seed=1)
+    added = len(out) - len(train)
+    assert 0.4 * len(train) < added < 0.6 * len(train) and out.meta["distractor_rows"] == added
+    origin = out.extras["origin"]
+    counts = np.bincount(origin, minlength=len(train))
+    assert set(np.unique(counts)) == {1, 2}
+    seen_object = seen_lock = seen_carry = False
+    for row in range(len(out)):
+        src = origin[row]
+        assert (
+            out.labels[row] == train.labels[src] and out.template_id[row] == train.template_id[src]
+        )
+        np.testing.assert_array_equal(out.tokens[row], train.tokens[src])
+        new, old = out.windows[row], train.windows[src]
+        changed = np.any(new != old, axis=-1)
+        if not changed.any():
+            continue
+        before, after = old[changed], new[changed]
+        strewn = (before[:, 0] == 1) & np.isin(after[:, 0], (5, 6, 7)) & (after[:, 2] == 0)
+        locked = (before[:, 0] == DOOR) & (before[:, 2] == 1) & (after[:, 2] == 2)
+        locked &= np.all(before[:, :2] == after[:, :2], axis=-1)
+        assert np.all(strewn | locked)
+        seen_object |= strewn.any()
+        seen_lock |= locked.any()
+        seen_carry |= bool(changed[:, 2, 4].any())
+    assert seen_object and seen_lock and seen_carry
+    assert len(checker.with_distractors(train, fraction=0.0)) == len(train)
+    with pytest.raises(ValueError, match="fraction"):
+        checker.with_distractors(train, fraction=1.5)
+    with pytest.raises(ValueError, match="cell_rate"):
+        checker.with_distractors(train, cell_rate=-0.1)
+    train.meta["lookahead"] = 2
+    with pytest.raises(ValueError, match="lookahead"):
+        checker.with_distractors(train)

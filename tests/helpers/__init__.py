@@ -1,0 +1,2 @@
+"""Shared test helpers, importable as ``helpers.<module>`` (pytest's ``pythonpath`` holds
+``tests``)."""
