@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import os
+import tempfile
 import warnings
 from collections.abc import Callable, Sequence
 
@@ -25,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgrid.io import atomic_write
 from jaxgrid.language import detokenize
 from jaxgrid.render import render_view
 from jaxgrid.types import State, TimeStep
@@ -167,7 +169,7 @@ def render_episode(
 
 
 def save_gif(frames, path: str | os.PathLike, fps: float = 5.0, loop: int = 0) -> str:
-    """Write uint8 frames ``(T, H, W, 3)`` as an animated GIF; returns the path.
+    """Write uint8 frames ``(T, H, W, 3)`` as an animated GIF, atomically; returns the path.
 
     ``loop=0`` repeats forever. Uses imageio's Pillow plugin.
     """
@@ -177,15 +179,17 @@ def save_gif(frames, path: str | os.PathLike, fps: float = 5.0, loop: int = 0) -
     if frames.ndim != 4 or frames.shape[-1] != 3 or len(frames) == 0:
         raise ValueError(f"frames must be uint8 (T, H, W, 3) with T >= 1, got {frames.shape}")
     path = os.fspath(path)
-    iio.imwrite(path, frames, extension=".gif", duration=1000.0 / fps, loop=loop)
+    data = iio.imwrite("<bytes>", frames, extension=".gif", duration=1000.0 / fps, loop=loop)
+    atomic_write(path, data)
     return path
 
 
 def save_video(frames, path: str | os.PathLike, fps: float = 5.0) -> str:
-    """Write uint8 frames ``(T, H, W, 3)`` as an H.264 MP4; returns the path.
+    """Write uint8 frames ``(T, H, W, 3)`` as an H.264 MP4, atomically; returns the path.
 
     Needs the ``imageio-ffmpeg`` package (``pip install imageio-ffmpeg``). Frames are padded
-    with white to even height and width, which H.264 requires.
+    with white to even height and width, which H.264 requires. ffmpeg writes to a scratch
+    directory, and the finished file is moved into place with :func:`jaxgrid.io.atomic_write`.
     """
     import imageio.v2 as iio2
 
@@ -196,11 +200,14 @@ def save_video(frames, path: str | os.PathLike, fps: float = 5.0) -> str:
     frames = np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)), constant_values=255)
     path = os.fspath(path)
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), tempfile.TemporaryDirectory() as scratch:
             # imageio-ffmpeg starts ffmpeg with subprocess (fork + exec at once), which is safe;
             # JAX's generic "os.fork() was called" warning does not apply.
             warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called")
-            iio2.mimwrite(path, list(frames), fps=fps, macro_block_size=2, format="FFMPEG")
+            tmp = os.path.join(scratch, "video.mp4")
+            iio2.mimwrite(tmp, list(frames), fps=fps, macro_block_size=2, format="FFMPEG")
+            with open(tmp, "rb") as f:
+                atomic_write(path, f.read())
     except (ImportError, ValueError, RuntimeError) as e:
         raise RuntimeError(
             f"could not write {path!r} with imageio's ffmpeg plugin ({e}); "
