@@ -1,8 +1,8 @@
 """Environment throughput on MiniGrid-DoorKey-8x8: jaxgrid vs NAVIX, XLand-MiniGrid, minigrid.
 
-Protocol (DESIGN.md section 8): uniform random actions drawn inside the scan with
-``jax.random``, auto-reset, ``jax.jit`` of a function that runs ``jax.lax.scan`` over T steps
-of ``jax.vmap(step)`` over N envs. Every JAX library runs the identical harness:
+Protocol: uniform random actions drawn inside the scan with ``jax.random``, auto-reset,
+``jax.jit`` of a function that runs ``jax.lax.scan`` over T steps of ``jax.vmap(step)`` over N
+envs. Every JAX library runs the identical harness (:func:`benchmarks.timing.measure`):
 
 * ``reset`` is vmapped over N keys once, outside the timed region;
 * the jitted rollout is lowered and compiled explicitly; that wall time is the reported
@@ -47,6 +47,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from benchmarks.timing import measure as measure_compiled
+from jaxgrid.io import write_json
 
 JAX_LIBS = ("jaxgrid", "navix", "xminigrid")
 ALL_LIBS = (*JAX_LIBS, "minigrid")
@@ -232,19 +235,10 @@ def _measure_jax(lib: str, num_envs: int, steps: int, repeats: int, seed: int) -
     env_state = jax.block_until_ready(batched_reset(lib, key_reset, num_envs))
     reset_s = time.perf_counter() - t0
 
-    rollout = jax.jit(make_rollout(adapter, num_envs, steps))
-    t0 = time.perf_counter()
-    compiled = rollout.lower(env_state, key_act).compile()
-    compile_s = time.perf_counter() - t0
-
-    times = []
-    out = None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(compiled(env_state, key_act))
-        times.append(time.perf_counter() - t0)
-
-    reward_sum, episodes, _ = out
+    timing = measure_compiled(
+        make_rollout(adapter, num_envs, steps), env_state, key_act, repeats=repeats
+    )
+    reward_sum, episodes, _ = timing.output
     env_steps = num_envs * steps
     return {
         "lib": lib,
@@ -252,11 +246,11 @@ def _measure_jax(lib: str, num_envs: int, steps: int, repeats: int, seed: int) -
         "num_envs": num_envs,
         "steps": steps,
         "repeats": repeats,
-        "compile_s": compile_s,
+        "compile_s": timing.compile_s,
         "reset_s": reset_s,
-        "times_s": times,
-        "steps_per_s": env_steps / min(times),
-        "steps_per_s_median": env_steps / statistics.median(times),
+        "times_s": list(timing.times_s),
+        "steps_per_s": env_steps / timing.best_s,
+        "steps_per_s_median": timing.rate(env_steps),
         "episodes_finished": int(episodes),
         "reward_sum": float(reward_sum),
         "notes": adapter.notes,
@@ -504,27 +498,37 @@ def run(
     }
 
 
-def main(argv: list[str] | None = None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--num-envs", type=int, nargs="+", default=list(DEFAULT_NUM_ENVS))
-    p.add_argument(
-        "--steps",
-        type=int,
-        default=None,
-        help="scan length T for every N (default: about "
-        f"{DEFAULT_STEP_BUDGET} env steps per N, i.e. T = budget / N)",
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.env_throughput",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--libs", nargs="+", default=list(ALL_LIBS), choices=ALL_LIBS)
-    p.add_argument(
-        "--python-steps",
-        type=int,
-        default=DEFAULT_PYTHON_STEPS,
-        help="Python-loop steps per repeat for Farama minigrid",
-    )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--num-envs", type=int, nargs="+", default=list(DEFAULT_NUM_ENVS),
+                   help="batch sizes N to measure")
+    p.add_argument("--steps", type=int, default=None,
+                   help="scan length T for every N (None: T = budget / N, budgets "
+                   f"{DEFAULT_STEP_BUDGET} env steps)")
+    p.add_argument("--repeats", type=int, default=3, help="timed calls per measurement")
+    p.add_argument("--libs", nargs="+", default=list(ALL_LIBS), choices=ALL_LIBS,
+                   help="libraries to measure")
+    p.add_argument("--python-steps", type=int, default=DEFAULT_PYTHON_STEPS,
+                   help="Python-loop steps per repeat for Farama minigrid")
+    p.add_argument("--seed", type=int, default=0, help="seed of the resets and actions")
     p.add_argument("--json", metavar="PATH", default=None, help="also write the JSON here")
+    return p  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> dict:
+    p = _parser()
     args = p.parse_args(argv)
+    for name in ("repeats", "python_steps"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.steps is not None and args.steps < 1:
+        p.error(f"--steps must be >= 1, got {args.steps}")
+    if any(n < 1 for n in args.num_envs):
+        p.error(f"--num-envs must all be >= 1, got {args.num_envs}")
 
     report = run(
         args.libs,
@@ -537,12 +541,9 @@ def main(argv: list[str] | None = None) -> dict:
     )
     print(format_table(report["results"], report["skipped"], args.num_envs, args.libs))
     print()
-    text = json.dumps(report, indent=2)
-    print(text)
+    print(json.dumps(report, indent=2))
     if args.json:
-        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
-        with open(args.json, "w") as f:
-            f.write(text + "\n")
+        write_json(args.json, report)
     return report
 
 

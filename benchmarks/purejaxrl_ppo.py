@@ -58,7 +58,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -70,6 +69,8 @@ import optax
 from flax import struct
 from flax.linen.initializers import constant, orthogonal
 from flax.training.train_state import TrainState
+
+from benchmarks.timing import measure as timed_run
 
 DEFAULT_ENV = "Navix-DoorKey-8x8-v0"
 
@@ -252,6 +253,23 @@ class Transition(NamedTuple):
     info: dict
 
 
+def resolve_config(config: dict[str, Any]) -> dict[str, Any]:
+    """``config`` over :data:`DEFAULT_CONFIG`, plus the derived ``NUM_UPDATES`` and
+    ``MINIBATCH_SIZE``; ``ValueError`` for sizes that make no whole update or minibatch."""
+    config = {**DEFAULT_CONFIG, **config}
+    config["NUM_UPDATES"] = int(
+        config["TOTAL_TIMESTEPS"] // config["NUM_STEPS"] // config["NUM_ENVS"]
+    )
+    config["MINIBATCH_SIZE"] = config["NUM_ENVS"] * config["NUM_STEPS"] // config["NUM_MINIBATCHES"]
+    if config["NUM_UPDATES"] < 1:
+        raise ValueError("TOTAL_TIMESTEPS must cover at least one NUM_ENVS x NUM_STEPS")
+    if config["MINIBATCH_SIZE"] * config["NUM_MINIBATCHES"] != (
+        config["NUM_ENVS"] * config["NUM_STEPS"]
+    ):
+        raise ValueError("NUM_ENVS * NUM_STEPS must be divisible by NUM_MINIBATCHES")
+    return config
+
+
 def make_train(
     config: dict[str, Any],
     env=None,
@@ -265,17 +283,7 @@ def make_train(
     ``network(action_dim, activation)`` builds a flax module mapping a batch of
     observations to ``(pi, value)``, default ``ActorCritic``.
     """
-    config = {**DEFAULT_CONFIG, **config}
-    config["NUM_UPDATES"] = int(
-        config["TOTAL_TIMESTEPS"] // config["NUM_STEPS"] // config["NUM_ENVS"]
-    )
-    config["MINIBATCH_SIZE"] = config["NUM_ENVS"] * config["NUM_STEPS"] // config["NUM_MINIBATCHES"]
-    if config["NUM_UPDATES"] < 1:
-        raise ValueError("TOTAL_TIMESTEPS must cover at least one NUM_ENVS x NUM_STEPS")
-    if config["MINIBATCH_SIZE"] * config["NUM_MINIBATCHES"] != (
-        config["NUM_ENVS"] * config["NUM_STEPS"]
-    ):
-        raise ValueError("NUM_ENVS * NUM_STEPS must be divisible by NUM_MINIBATCHES")
+    config = resolve_config(config)
     env = make_env(config["ENV_NAME"]) if env is None else env
     network = ActorCritic if network is None else network
 
@@ -461,7 +469,8 @@ def measure(
     env_name: str = DEFAULT_ENV,
     return_output: bool = False,
 ) -> dict[str, Any]:
-    """Compile ``train`` (timed), then time one run of it; env steps/s exclude compile.
+    """Compile ``train`` (timed), then time one run of it (:func:`benchmarks.timing.measure`);
+    env steps/s exclude compile.
 
     ``total_timesteps`` is the number actually run: ``NUM_UPDATES * num_envs *
     num_steps`` (the request rounded down to whole updates, as PureJaxRL does).
@@ -476,38 +485,48 @@ def measure(
         "ENV_NAME": env_name,
     }
     train = make_train(config, env=env, network=network)
-    key = jax.random.PRNGKey(seed)
-
-    t0 = time.perf_counter()
-    compiled = jax.jit(train).lower(key).compile()
-    compile_s = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(compiled(key))
-    run_s = time.perf_counter() - t0
-
+    timing = timed_run(train, jax.random.PRNGKey(seed), repeats=1)
     steps = (total_timesteps // num_steps // num_envs) * num_steps * num_envs
     result = {
-        "sps": steps / run_s,
-        "compile_s": compile_s,
+        "sps": timing.rate(steps),
+        "compile_s": timing.compile_s,
         "total_timesteps": int(steps),
         "device": device_description(),
-        "run_s": run_s,
+        "run_s": timing.median_s,
     }
     if return_output:
-        result["output"] = out
+        result["output"] = timing.output
     return result
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--timesteps", type=int, default=2_000_000)
-    parser.add_argument("--num-envs", type=int, default=256)
-    parser.add_argument("--num-steps", type=int, default=128)
-    parser.add_argument("--update-epochs", type=int, default=4)
-    parser.add_argument("--num-minibatches", type=int, default=8)
-    parser.add_argument("--seed", type=int, default=0)
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.purejaxrl_ppo",
+        description=__doc__.splitlines()[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    c = DEFAULT_CONFIG
+    parser.add_argument("--timesteps", type=int, default=c["TOTAL_TIMESTEPS"],
+                        help="env steps to train for, rounded down to whole updates")
+    parser.add_argument("--num-envs", type=int, default=c["NUM_ENVS"], help="parallel envs")
+    parser.add_argument("--num-steps", type=int, default=c["NUM_STEPS"],
+                        help="rollout length per update")
+    parser.add_argument("--update-epochs", type=int, default=c["UPDATE_EPOCHS"],
+                        help="epochs over each batch")
+    parser.add_argument("--num-minibatches", type=int, default=c["NUM_MINIBATCHES"],
+                        help="minibatches per epoch")
+    parser.add_argument("--seed", type=int, default=0, help="PRNG seed of the run")
     args = parser.parse_args(argv)
+    for name in ("timesteps", "num_envs", "num_steps", "update_epochs", "num_minibatches"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    batch = args.num_envs * args.num_steps
+    if args.timesteps < batch:
+        parser.error(f"--timesteps ({args.timesteps}) must cover one update of --num-envs x "
+                     f"--num-steps ({batch}) env steps")
+    if batch % args.num_minibatches:
+        parser.error(f"--num-minibatches ({args.num_minibatches}) must divide --num-envs x "
+                     f"--num-steps ({batch})")
     res = measure(
         total_timesteps=args.timesteps,
         num_envs=args.num_envs,

@@ -1,4 +1,4 @@
-"""Smoke test of the env-throughput benchmark harness at tiny sizes (N=2, T=8)."""
+"""benchmarks.env_throughput at tiny sizes (N=2, T=8): measurements, table, CLI."""
 
 import json
 
@@ -39,3 +39,36 @@ def test_table_and_ratio_with_skipped_lib():
         fake, {"minigrid": "ImportError: x"}, [1], ["jaxgrid", "navix", "xminigrid", "minigrid"]
     )
     assert "skipped: ImportError: x" in table and "2.00x (vs xminigrid)" in table
+
+
+def test_cli_writes_json_report(tmp_path, capsys):
+    out = tmp_path / "runs" / "env.json"
+    argv = ["--libs", "jaxgrid", "--num-envs", "2", "--steps", "8", "--repeats", "2",
+            "--json", str(out)]  # fmt: skip
+    report = bench.main(argv)
+    assert json.loads(out.read_text()) == json.loads(json.dumps(report))
+    (result,) = report["results"]
+    _check(result, "jaxgrid")
+    assert "jaxgrid" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "argv, flag",
+    [(["--repeats", "0"], "--repeats"), (["--steps", "0"], "--steps"),
+     (["--num-envs", "4", "0"], "--num-envs"), (["--libs", "gym"], "--libs"),
+     (["--python-steps", "-3"], "--python-steps")],
+)  # fmt: skip
+def test_cli_rejects_bad_flags(argv, flag, capsys):
+    with pytest.raises(SystemExit) as exc:
+        bench.main(argv)
+    assert exc.value.code == 2
+    assert flag in capsys.readouterr().err
+
+
+def test_cli_help_shows_every_default(capsys):
+    with pytest.raises(SystemExit):
+        bench.main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for shown in ("(default: [1, 256, 4096])", "(default: 3)", "(default: 3000)",
+                  "(default: 0)", "(default: None)"):  # fmt: skip
+        assert shown in text

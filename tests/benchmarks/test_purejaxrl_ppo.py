@@ -1,24 +1,58 @@
-"""Smoke test of the PureJaxRL-style PPO baseline at a tiny size (8 envs x 16 steps x 2 updates).
+"""benchmarks.purejaxrl_ppo at a tiny size (8 envs x 16 steps x 2 updates).
 
-One compile (~10-15 s on 2 shared cores: NAVIX's step dominates it), one run.
+The harness runs on a small chain env everywhere; on NAVIX DoorKey-8x8 (its default env) when
+navix is installed: one compile (~10-15 s on 2 shared cores, NAVIX's step dominates it).
 """
 
 import json
 import math
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
-pytest.importorskip("navix")
-
-from benchmarks import purejaxrl_ppo as bench  # noqa: E402
+from benchmarks import purejaxrl_ppo as bench
 
 N, T, U, EPOCHS, MB = 8, 16, 2, 2, 4
 
 
+class Chain:
+    """Gymnax-style 5-cell corridor: action 1 steps right, 0 left; reward 1 at the end cell,
+    where the episode ends and restarts at cell 0. One-hot uint8 observation."""
+
+    def reset(self, key, params=None):
+        pos = jnp.int32(0)
+        return jax.nn.one_hot(pos, 5, dtype=jnp.uint8), pos
+
+    def step(self, key, state, action, params=None):
+        pos = jnp.clip(state + 2 * action - 1, 0, 4)
+        done = pos == 4
+        pos_next = jnp.where(done, 0, pos)
+        obs = jax.nn.one_hot(pos_next, 5, dtype=jnp.uint8)
+        return obs, pos_next, done.astype(jnp.float32), done, {}
+
+    def observation_shape(self, params=None):
+        return (5,)
+
+    def num_actions(self, params=None):
+        return 2
+
+
+def test_harness_on_an_injected_env_learns_the_chain():
+    env = bench.LogWrapper(bench.FlattenObservation(Chain()))
+    res = bench.measure(total_timesteps=N * T * 30, num_envs=N, num_steps=T, update_epochs=EPOCHS,
+                        num_minibatches=MB, env=env, return_output=True)  # fmt: skip
+    assert res["total_timesteps"] == N * T * 30 and res["sps"] > 0 and res["compile_s"] > 0
+    lengths = np.asarray(res["output"]["metrics"]["returned_episode_lengths"])
+    done = np.asarray(res["output"]["metrics"]["returned_episode"])
+    first, last = lengths[:5][done[:5]].mean(), lengths[-5:][done[-5:]].mean()
+    assert last < first and last < 6  # the shortest episode is 4 steps
+
+
 @pytest.fixture(scope="module")
 def result():
+    pytest.importorskip("navix")
     return bench.measure(
         total_timesteps=N * T * U + 5,  # rounded down to whole updates, as in PureJaxRL
         num_envs=N,
@@ -71,9 +105,22 @@ def test_train_output_shapes(result):
 
 
 def test_config_validation():
+    assert bench.resolve_config({"TOTAL_TIMESTEPS": 300, "NUM_ENVS": 8, "NUM_STEPS": 16})[
+        "NUM_UPDATES"] == 2  # fmt: skip
     with pytest.raises(ValueError, match="at least one"):
         bench.make_train({"TOTAL_TIMESTEPS": 10, "NUM_ENVS": 8, "NUM_STEPS": 16})
     with pytest.raises(ValueError, match="divisible"):
         bench.make_train(
             {"TOTAL_TIMESTEPS": 1000, "NUM_ENVS": 3, "NUM_STEPS": 5, "NUM_MINIBATCHES": 2}
         )
+
+
+@pytest.mark.parametrize(
+    "argv, flag",
+    [(["--timesteps", "100"], "--timesteps"), (["--num-minibatches", "3"], "--num-minibatches"),
+     (["--num-envs", "0"], "--num-envs"), (["--update-epochs", "x"], "--update-epochs")],
+)  # fmt: skip
+def test_cli_rejects_bad_flags_before_compiling(argv, flag, capsys):
+    with pytest.raises(SystemExit) as exc:
+        bench.main(argv)
+    assert exc.value.code == 2 and flag in capsys.readouterr().err
