@@ -13,7 +13,7 @@ Language branch: Embed(32) -> GRU(128) over the token ids, read at the last real
 The language branch is exposed separately (:meth:`ActorCritic.encode_language`) because
 constraints come from a small fixed set of sentences: the learner encodes that table once
 per minibatch and gathers rows, instead of running the GRU for every sample (see
-``agents.ppo``). :meth:`ActorCritic.__call__` takes the sentence features, not tokens.
+:mod:`agents.train`). :meth:`ActorCritic.__call__` takes the sentence features, not tokens.
 """
 
 from __future__ import annotations
@@ -190,3 +190,24 @@ class ActorCritic(nn.Module):
     def init_all(self, image, direction, tokens):
         """Initialisation path touching every submodule (use as ``method=`` in ``init``)."""
         return self(image, direction, self.sentence_features(tokens))
+
+
+def table_features(network: ActorCritic, params, tokens: jax.Array | None) -> jax.Array:
+    """The ``lang`` input of every sentence of a table (K, L) -> (K, lang_dim).
+
+    ``tokens`` None (an env without constraints) gives one row of zeros. The learner calls
+    this once per rollout and once per minibatch, so the GRU runs per sentence, not per sample.
+    """
+    if tokens is None:
+        return jnp.zeros((1, network.lang_dim), jnp.float32)
+    return network.apply(params, tokens, method=ActorCritic.sentence_features)
+
+
+def apply_policy(network: ActorCritic, params, lang_table, image, direction, sentence):
+    """``network`` on a batch whose sentences are rows ``sentence`` (B,) of ``lang_table``.
+
+    The row is selected by a one-hot matmul rather than a gather: its gradient is a matmul,
+    not a scatter (slow on CPU).
+    """
+    lang = jax.nn.one_hot(sentence, lang_table.shape[0], dtype=lang_table.dtype) @ lang_table
+    return network.apply(params, image, direction, lang)

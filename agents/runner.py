@@ -1,6 +1,6 @@
 """Drive training from the host: seeds, devices, progress, JSONL logs, checkpoints, resume.
 
-:func:`run` executes the same pure pieces as :func:`agents.ppo.make_train`, one chunk of
+:func:`run` executes the same pure pieces as :func:`agents.train.make_train`, one chunk of
 ``eval_every`` updates at a time, ``jit(vmap(...))`` over seeds, so that metrics reach the
 host as they happen (a tqdm bar and one JSONL line per seed and chunk), checkpoints can be
 written between chunks, and a killed run resumes where its last checkpoint left it with the
@@ -8,7 +8,7 @@ same final parameters as an uninterrupted run (the whole runner state, RNG and e
 included, is saved).
 
 **Devices.** With more than one local device, the environment batch (every leaf of
-:class:`agents.ppo.EnvCarry`) is sharded along its env axis over a 1-D ``jax.sharding.Mesh``
+:class:`agents.rollout.EnvCarry`) is sharded along its env axis over a 1-D ``jax.sharding.Mesh``
 named ``"envs"``; parameters, optimiser state and keys are replicated. XLA partitions the
 rollout and inserts the collectives of the minibatch shuffle. For several hosts, call
 ``jax.distributed.initialize()`` in every process before :func:`run`: the mesh is then
@@ -31,8 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from agents.config import PPOConfig
 from agents.evaluation import summarise
-from agents.ppo import Learner, PPOConfig, RunnerState, make_learner
+from agents.train import Learner, RunnerState, make_learner
+from jaxgrid import io
 
 
 class NonFiniteError(FloatingPointError):
@@ -200,7 +202,7 @@ def run(
             runner = init(keys)
         if out is not None:
             _write_run_info(out, config, seeds)
-            _write_records(out / "metrics.jsonl", records)
+            io.write_jsonl(out / "metrics.jsonl", records)
 
         bar = _progress(config.num_chunks, done_chunks, progress, desc or config.reward_mode)
         stop = (
@@ -224,7 +226,7 @@ def run(
             new = chunk_records(config, c, seeds, metrics, totals)
             records.extend(new)
             if out is not None:
-                _append_records(out / "metrics.jsonl", new)
+                io.append_jsonl(out / "metrics.jsonl", new)
             last = c + 1 == config.num_chunks
             if manager is not None and ((c + 1) % checkpoint_every == 0 or last):
                 if not manager.save(c + 1, args=_save_args(runner)):
@@ -317,9 +319,7 @@ def _run_info(config: PPOConfig, seeds: list[int]) -> dict:
 
 
 def _write_run_info(out: Path, config: PPOConfig, seeds: list[int]) -> None:
-    tmp = out / "run.json.tmp"
-    tmp.write_text(json.dumps(_run_info(config, seeds), indent=2))
-    os.replace(tmp, out / "run.json")
+    io.write_json(out / "run.json", _run_info(config, seeds))
 
 
 def _check_run_info(out: Path, config: PPOConfig, seeds: list[int]) -> None:
@@ -327,7 +327,7 @@ def _check_run_info(out: Path, config: PPOConfig, seeds: list[int]) -> None:
     path = out / "run.json"
     if not path.exists():
         return
-    saved, now = json.loads(path.read_text()), _run_info(config, seeds)
+    saved, now = io.read_json(path), _run_info(config, seeds)
     if saved["seeds"] != now["seeds"]:
         raise ValueError(
             f"cannot resume {out}: it was run with seeds {saved['seeds']}, not {seeds} "
@@ -402,20 +402,4 @@ def _restore(manager, step, abstract, shardings):
 def _read_records(path: Path, chunks: int) -> list[dict]:
     if not path.exists():
         return []
-    with path.open() as f:
-        records = [json.loads(line) for line in f if line.strip()]
-    return [r for r in records if r["chunk"] < chunks]
-
-
-def _write_records(path: Path, records: list[dict]) -> None:
-    tmp = path.with_suffix(".jsonl.tmp")
-    with tmp.open("w") as f:
-        for r in records:
-            f.write(json.dumps(r) + "\n")
-    os.replace(tmp, path)
-
-
-def _append_records(path: Path, records: list[dict]) -> None:
-    with path.open("a") as f:
-        for r in records:
-            f.write(json.dumps(r) + "\n")
+    return [r for r in io.read_jsonl(path) if r["chunk"] < chunks]

@@ -1,1 +1,306 @@
-from agents.ppo import Learner, RunnerState, evaluation_steps, make_learner, make_train  # noqa: F401
+"""PPO fused into one jitted update, in the PureJaxRL style: ``make_train(config) -> train``.
+
+One update is
+
+1. a ``lax.scan`` of :func:`agents.rollout.env_step` over ``num_steps`` steps of
+   ``num_envs`` auto-resetting environments (policy, checker, reward shaping, truncation
+   bootstrap);
+2. :func:`agents.losses.gae`;
+3. ``update_epochs`` x ``num_minibatches`` steps of :func:`agents.losses.ppo_loss`.
+
+``train(key)`` scans :attr:`PPOConfig.num_chunks` chunks of ``eval_every`` updates, each
+followed by an evaluation on fixed seeds; it is pure, so ``jax.jit(jax.vmap(train))`` runs
+several seeds at once. :mod:`agents.runner` drives the same :class:`Learner` chunk by chunk
+from the host for progress bars, logs and checkpoints.
+
+Constraints come from a small fixed table of sentences, so the sentence GRUs encode the
+table (once per rollout and once per minibatch) and each sample gathers its row.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import flax.struct as struct
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jax import lax
+
+from agents import rollout
+from agents.config import PPOConfig, check_checker
+from agents.evaluation import play_episodes, summarise
+from agents.losses import gae, ppo_loss, shuffle
+from agents.networks import ActorCritic, apply_policy, table_features
+from agents.rollout import EnvCarry, Transition
+from jaxgrid import language
+from jaxgrid.wrappers import BatchedAutoReset
+
+
+class RunnerState(struct.PyTreeNode):
+    params: Any
+    opt_state: Any
+    lagrange: jax.Array  # float32 multiplier of the Lagrangian mode (0 otherwise)
+    key: jax.Array
+    update: jax.Array  # int32 number of updates done
+    env: EnvCarry
+
+
+class Learner(struct.PyTreeNode):
+    """The pure functions of a run, closed over its static configuration.
+
+    ``init(key) -> RunnerState``; ``rollout(runner) -> (env, Transition, stats)``;
+    ``update(runner) -> (runner, metrics)``; ``chunk(runner) -> (runner, metrics)``
+    (``eval_every`` updates and one evaluation); ``act`` and ``evaluate`` for a trained
+    policy. Built by :func:`make_learner`.
+    """
+
+    config: PPOConfig = struct.field(pytree_node=False)
+    env: BatchedAutoReset = struct.field(pytree_node=False)
+    network: ActorCritic = struct.field(pytree_node=False)
+    optimizer: Any = struct.field(pytree_node=False)
+    has_language: bool = struct.field(pytree_node=False, default=True)
+    checker: Any = None
+    table: jax.Array = None  # int32 (K, L): the env's sentence table
+    # Real tokens of the table's longest sentence. The sentence encoders run this many steps:
+    # on the pad tail a GRU's carry is never read (same features and gradients, fewer steps).
+    words: int = struct.field(pytree_node=False, default=language.MAX_LEN)
+
+    # -- pieces -------------------------------------------------------------------------
+    def lang_table(self, params) -> jax.Array:
+        """(K, lang_dim): the policy's sentence features of every row of the table."""
+        tokens = self.table[:, : self.words] if self.has_language else None
+        return table_features(self.network, params, tokens)
+
+    def policy(self, params, lang_table=None):
+        """The policy ``(image, direction, sentence row) -> (logits, value, cost_value)``."""
+        lang_table = self.lang_table(params) if lang_table is None else lang_table
+        return functools.partial(apply_policy, self.network, params, lang_table)
+
+    def constraint_ramp(self, update: jax.Array) -> jax.Array:
+        """How far the constraint is switched on at update ``update`` (0-based): 0 for the
+        first ``penalty_start`` of training, then a linear ramp to 1 over ``penalty_warmup``."""
+        c = self.config
+        start, warmup = c.penalty_start * c.num_updates, c.penalty_warmup * c.num_updates
+        done = (update + 1 - start) / warmup if warmup > 0 else (update + 1 > start) * 1.0
+        return jnp.clip(done, 0.0, 1.0)
+
+    def penalty_at(self, update: jax.Array) -> jax.Array:
+        """The shaping penalty of update ``update`` (0-based): 0, a ramp, then ``penalty``."""
+        return (self.config.penalty * self.constraint_ramp(update)).astype(jnp.float32)
+
+    def novelty_at(self, update: jax.Array) -> jax.Array:
+        """The novelty bonus of update ``update``: ``novelty_bonus`` annealed linearly to 0
+        (0 after the last update)."""
+        c = self.config
+        return (c.novelty_bonus * (1.0 - update / c.num_updates)).astype(jnp.float32)
+
+    # -- init ---------------------------------------------------------------------------
+    def init(self, key: jax.Array) -> RunnerState:
+        c, env = self.config, self.env
+        key, net_key, env_key = jax.random.split(key, 3)
+        states, ts = env.reset(jax.random.split(env_key, c.num_envs))
+        obs = ts.observation
+        params = self.network.init(
+            net_key, obs["image"][:1], obs["direction"][:1], self.table[:1],
+            method=ActorCritic.init_all,
+        )  # fmt: skip
+        frames = rollout.empty_frames(self.checker, c.num_envs, env.view_size)
+        if self.checker is not None:
+            start = jnp.ones((c.num_envs,), bool)
+            emb = rollout.embed(self.checker, obs["image"])
+            frames = rollout.push_frames(self.checker, frames, emb, start, env.view_size)
+        zeros = jnp.zeros((c.num_envs,), jnp.float32)
+        carry = EnvCarry(
+            state=states, obs=obs, sentence=rollout.sentence_rows(obs, self.table),
+            frames=frames, visited=rollout.visits(states, env.width, env.height,
+                                                  c.novelty_bonus != 0),
+            ep_return=zeros, ep_length=zeros.astype(jnp.int32),
+        )  # fmt: skip
+        return RunnerState(
+            params=params,
+            opt_state=self.optimizer.init(params),
+            lagrange=jnp.float32(c.lagrangian_init if c.reward_mode == "lagrangian" else 0.0),
+            key=key,
+            update=jnp.zeros((), jnp.int32),
+            env=carry,
+        )
+
+    # -- rollout and update -------------------------------------------------------------
+    def rollout(self, runner: RunnerState, key: jax.Array, lang_table=None):
+        """``num_steps`` env steps with the runner's policy and the schedules of its update.
+
+        Returns ``(env carry, Transition (T, E), statistics (T,))``.
+        """
+        step = functools.partial(
+            rollout.env_step, config=self.config, env=self.env,
+            policy=self.policy(runner.params, lang_table), table=self.table, words=self.words,
+            checker=self.checker, penalty=self.penalty_at(runner.update),
+            novelty=self.novelty_at(runner.update),
+        )  # fmt: skip
+        keys = jax.random.split(key, self.config.num_steps)
+        env, (traj, stats) = lax.scan(step, runner.env, keys)
+        return env, traj, stats
+
+    def update(self, runner: RunnerState):
+        """One PPO update: rollout, GAE, epochs x minibatches. Returns per-update metrics."""
+        c = self.config
+        key, rollout_key, perm_key = jax.random.split(runner.key, 3)
+        params = runner.params
+        lang_table = self.lang_table(params)
+        env, traj, stats = self.rollout(runner, rollout_key, lang_table)
+        _, last_value, last_cost_value = self.policy(params, lang_table)(
+            env.obs["image"], env.obs["direction"], env.sentence
+        )
+        batch = self._batch(traj, last_value, last_cost_value)
+
+        def loss(params, mb, lagrange):
+            policy = lambda p, *x: self.policy(p)(*x)
+            return ppo_loss(policy, params, mb, lagrange, c)
+
+        def epoch(carry, k):
+            params, opt_state = carry
+            perm = shuffle(k, c.batch_size)
+            shuffled = jax.tree.map(
+                lambda x: x[perm].reshape((c.num_minibatches, -1) + x.shape[1:]), batch
+            )
+
+            def minibatch(carry, mb):
+                params, opt_state = carry
+                grads, info = jax.grad(loss, has_aux=True)(params, mb, runner.lagrange)
+                updates, opt_state = self.optimizer.update(grads, opt_state, params)
+                return (optax.apply_updates(params, updates), opt_state), info
+
+            return lax.scan(minibatch, (params, opt_state), shuffled)
+
+        (params, opt_state), info = lax.scan(
+            epoch, (params, runner.opt_state), jax.random.split(perm_key, c.update_epochs)
+        )
+        lagrange, metrics = self._statistics(runner, info, stats)
+        runner = runner.replace(
+            params=params, opt_state=opt_state, lagrange=lagrange, key=key,
+            update=runner.update + 1, env=env,
+        )  # fmt: skip
+        return runner, metrics
+
+    def _batch(self, traj: Transition, last_value, last_cost_value) -> dict:
+        """The flat (T * E, ...) training batch: transitions, advantages and targets."""
+        c = self.config
+        adv, target = gae(traj.value, traj.reward, traj.done, last_value, c.gamma, c.gae_lambda)
+        batch = {
+            "image": traj.image, "direction": traj.direction, "sentence": traj.sentence,
+            "action": traj.action, "log_prob": traj.log_prob, "value": traj.value,
+            "advantage": adv, "target": target,
+        }  # fmt: skip
+        if c.reward_mode == "lagrangian":
+            cadv, ctarget = gae(
+                traj.cost_value, traj.cost, traj.done, last_cost_value, c.gamma, c.gae_lambda
+            )
+            batch.update(cost_value=traj.cost_value, cost_advantage=cadv, cost_target=ctarget)
+        return jax.tree.map(lambda x: x.reshape((c.batch_size,) + x.shape[2:]), batch)
+
+    def _statistics(self, runner: RunnerState, info: dict, stats: dict):
+        """The next Lagrange multiplier and the update's metrics."""
+        c = self.config
+        cost_rate = stats["cost"].sum() / c.batch_size
+        # Cost per episode (rollout cost over the episodes it finished): the multiplier reacts
+        # to what a constraint budget is about, and is not diluted by long safe stretches.
+        episode_cost = stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
+        lagrange = runner.lagrange
+        if c.reward_mode == "lagrangian":
+            step = c.lagrangian_lr * (episode_cost - c.cost_target)
+            # Held at its start value until the constraint switches on (whatever ``penalty``).
+            active = self.constraint_ramp(runner.update) > 0
+            lagrange = jnp.where(active, jnp.maximum(0.0, lagrange + step), lagrange)
+        metrics = jax.tree.map(jnp.mean, info)
+        totals = jax.tree.map(jnp.sum, stats)
+        metrics.update(
+            {k: totals[k] for k in ("episodes", "successes", "violations", "alarms")},
+            episode_return=totals["episode_return"] / jnp.maximum(totals["episodes"], 1),
+            cost_rate=cost_rate,
+            novelty_rate=totals["novelty"] / c.batch_size,
+            episode_cost=episode_cost,
+            lagrange=lagrange,
+        )
+        return lagrange, metrics
+
+    # -- evaluation ---------------------------------------------------------------------
+    def act(self, params, obs, key):
+        """Sample actions for a batch of observations (any sentence: the GRU runs on it)."""
+        tokens = obs.get("constraint")
+        if tokens is None:
+            lang = jnp.zeros((obs["direction"].shape[0], self.network.lang_dim), jnp.float32)
+        else:
+            lang = self.network.apply(params, tokens, method=ActorCritic.sentence_features)
+        logits, _, _ = self.network.apply(params, obs["image"], obs["direction"], lang)
+        return jax.random.categorical(key, logits)
+
+    def evaluate(self, params, key, num_episodes: int, env=None):
+        """Per-episode results of :func:`agents.evaluation.play_episodes` (fixed ``key`` =
+        fixed episodes) on the raw env (or ``env``)."""
+        env = self.env.env if env is None else env
+        return play_episodes(env, lambda o, k: self.act(params, o, k), key, num_episodes)
+
+    def chunk(self, runner: RunnerState):
+        """``eval_every`` updates, then evaluation on the fixed evaluation seeds."""
+        runner, metrics = lax.scan(
+            lambda r, _: self.update(r), runner, None, self.config.eval_every
+        )
+        eval_key = jax.random.PRNGKey(self.config.eval_seed)
+        evaluation = summarise(self.evaluate(runner.params, eval_key, self.config.eval_episodes))
+        return runner, {"train": metrics, "eval": evaluation}
+
+
+def make_learner(config: PPOConfig, checker=None) -> Learner:
+    """Validate ``config`` (and ``checker``) and build the run's :class:`Learner`."""
+    env = config.make_env()
+    check_checker(config, checker, env)
+    if config.reward_mode in ("none", "shaped"):
+        checker = None  # not needed: skip its cost
+    table = language.sentence_table(env)
+
+    def schedule(count):
+        per_update = config.update_epochs * config.num_minibatches
+        frac = 1.0 - (count // per_update) / config.num_updates
+        return config.lr * frac if config.anneal_lr else config.lr
+
+    optimizer = optax.chain(
+        optax.clip_by_global_norm(config.max_grad_norm),
+        optax.adam(schedule, eps=1e-5),
+    )
+    return Learner(
+        config=config,
+        env=BatchedAutoReset(env),
+        network=ActorCritic(num_actions=env.num_actions, conv_channels=config.conv_channels),
+        optimizer=optimizer,
+        checker=checker,
+        has_language=hasattr(env, "constraint_table"),
+        table=jnp.asarray(table),
+        words=max(1, int((table != language.VOCAB.index(language.PAD)).sum(1).max())),
+    )
+
+
+def make_train(config: PPOConfig, checker=None):
+    """PureJaxRL-style: returns a pure ``train(key) -> dict``; jit and vmap it freely.
+
+    The result holds the final ``runner`` state, ``train`` metrics of every update (leading
+    axes ``(num_chunks, eval_every)``) and ``eval`` rates after every chunk
+    (``(num_chunks,)``); :func:`evaluation_steps` gives the env steps done at each
+    evaluation.
+    """
+    learner = make_learner(config, checker)
+
+    def train(key):
+        runner = learner.init(key)
+        runner, metrics = lax.scan(lambda r, _: learner.chunk(r), runner, None, config.num_chunks)
+        return {"runner": runner, **metrics}
+
+    return train
+
+
+def evaluation_steps(config: PPOConfig) -> np.ndarray:
+    """Env steps done at each of the ``num_chunks`` evaluations of :func:`make_train`."""
+    per_chunk = config.eval_every * config.batch_size
+    return per_chunk * np.arange(1, config.num_chunks + 1, dtype=np.int64)

@@ -17,7 +17,8 @@ import numpy as np
 
 import checker as chk
 import jaxgrid
-from agents.ppo import PPOConfig, make_learner
+from agents.config import PPOConfig
+from agents.train import make_learner
 from agents.runner import run as run_ppo
 
 # Checker metrics copied into results.json (all rates).

@@ -14,7 +14,7 @@ with :func:`jaxgrid.register`)::
     envs = gym.make_vec("jaxgrid/TwoRooms-v0", num_envs=64, vectorization_mode="vector_entry_point")
 
 :class:`JaxGridEnv` wraps one environment behind a jitted ``step``; :class:`JaxGridVectorEnv`
-steps the whole batch in one jitted, vmapped call of :class:`jaxgrid.wrappers.AutoReset`, with
+steps the whole batch in one jitted call of :class:`jaxgrid.wrappers.BatchedAutoReset`, with
 gymnasium's ``AutoresetMode.SAME_STEP`` semantics. Both return numpy arrays.
 """
 
@@ -33,7 +33,7 @@ from gymnasium.vector.utils import batch_space
 from jaxgrid.language import MAX_LEN, vocab_size
 from jaxgrid.registry import make, registered_ids
 from jaxgrid.render import render, render_ansi
-from jaxgrid.wrappers import AutoReset
+from jaxgrid.wrappers import BatchedAutoReset
 
 __all__ = ["NAMESPACE", "JaxGridEnv", "JaxGridVectorEnv", "observation_space", "register_envs"]
 
@@ -165,12 +165,12 @@ class JaxGridEnv(gymnasium.Env):
 
 @functools.partial(jax.jit, static_argnums=0)
 def _vreset(env, keys):
-    return jax.vmap(env.reset)(keys)
+    return env.reset(keys)
 
 
 @functools.partial(jax.jit, static_argnums=0)
 def _vstep(env, states, actions):
-    return jax.vmap(env.step)(states, actions)
+    return env.step(states, actions)
 
 
 @functools.partial(jax.jit, static_argnums=(1, 2))
@@ -179,9 +179,11 @@ def _vrender(states, env, tile_size):
 
 
 class JaxGridVectorEnv(VectorEnv):
-    """``num_envs`` copies of a jaxgrid environment stepped in one jitted, vmapped call.
+    """``num_envs`` copies of a jaxgrid environment stepped in one jitted call.
 
-    Auto-reset is :class:`jaxgrid.wrappers.AutoReset`'s, which is gymnasium's
+    Auto-reset is :class:`jaxgrid.wrappers.BatchedAutoReset`'s (the same bits as
+    ``vmap(AutoReset(env).step)``, fresh episodes generated only where one ended), which is
+    gymnasium's
     ``AutoresetMode.SAME_STEP`` (``metadata["autoreset_mode"]``): when a sub-environment's
     episode ends, the returned observation is already the next episode's first one, and
     ``infos["final_obs"]`` (an object array, ``None`` where the episode did not end, mask
@@ -221,7 +223,7 @@ class JaxGridVectorEnv(VectorEnv):
                 f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}"
             )
         base = make(env_id, **overrides) if env is None else env
-        self.jax_env = AutoReset(base)
+        self.jax_env = BatchedAutoReset(base)
         self.env_id = env_id
         self.num_envs = num_envs
         self.render_mode = render_mode

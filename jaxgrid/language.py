@@ -5,8 +5,9 @@ stay away from lava". This module fixes the grammar that generates every such se
 the vocabulary and token ids fed to the constraint checker, a parser that compiles a
 sentence into its meaning (:class:`Constraint`: the forbidden door colours and whether
 lava is forbidden), and a deterministic held-out split of (template, colour) combinations
-for measuring compositional generalisation. It is pure Python + numpy; the arrays of
-:func:`combination_table` are what a jitted constraint sampler indexes into.
+for measuring compositional generalisation. The arrays of :func:`combination_table` are what
+a jitted constraint sampler indexes into; :func:`sentence_table` and :func:`sentence_index`
+let models encode each distinct sentence once and gather rows.
 
 Grammar
 -------
@@ -76,9 +77,11 @@ appears in training, and the paper's Table 1 examples are all training combinati
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+import jax.numpy as jnp
 import numpy as np
 
 from jaxgrid.constants import COLOR_NAMES, COLOR_TO_IDX
@@ -417,6 +420,7 @@ def detokenize(ids: Any) -> str:
 
 
 def is_heldout(template_id: int, colour: str) -> bool:
+    """Whether (template, colour) belongs to the held-out split (never seen in training)."""
     return (TEMPLATES[template_id].door_clause, colour) in HELDOUT_DOOR_PHRASES
 
 
@@ -463,3 +467,46 @@ def combination_table(split: str, include_lava: bool = True) -> dict[str, np.nda
         "door_colour": np.array([COLOR_TO_IDX[c] for _, c in combos], dtype=np.int32),
         "forbids_lava": np.array([t.has_lava for t in rows], dtype=bool),
     }
+
+
+# --------------------------------------------------------------------------------------
+# Sentence tables: constraints come from a small fixed set, so models encode the table once
+# and each sample gathers its row.
+# --------------------------------------------------------------------------------------
+@functools.cache
+def _grammar_table() -> np.ndarray:
+    rows = [tokenize(render(t.id, c)) for t in TEMPLATES for c in COLOURS]
+    return np.stack(rows).astype(np.int32)
+
+
+def sentence_table(env: Any = None) -> np.ndarray:
+    """int32 ``(K, MAX_LEN)`` token ids of every sentence a source can produce.
+
+    ``env`` None: every sentence of the grammar (each template with each of the six colours,
+    ``K = 210``; the tokenizer is canonical, so any valid constraint's tokens are one of these
+    rows). An env with a ``constraint_table()`` (the scenarios): the sentences of its split.
+    Any other env: one pad row, so that code indexing the table works unchanged.
+    """
+    if env is None:
+        return _grammar_table()
+    if not hasattr(env, "constraint_table"):
+        return np.full((1, MAX_LEN), VOCAB.index(PAD), np.int32)
+    return np.asarray(env.constraint_table()["tokens"], np.int32)
+
+
+def sentence_index(tokens: Any, table: Any) -> Any:
+    """Row of ``table`` (K, L) equal to each row of ``tokens`` (B, L), as int32 (B,).
+
+    With numpy inputs a row found nowhere in the table raises ``ValueError`` naming the
+    sentence. With JAX arrays (also under ``jit``, where nothing can raise) such a row gets
+    -1: callers that gather with it must mask it (the checker turns it into NaN).
+    """
+    if isinstance(tokens, np.ndarray) and isinstance(table, np.ndarray):
+        match = np.all(tokens[:, None, :] == table[None, :, :], axis=-1)
+        missing = ~match.any(axis=-1)
+        if missing.any():
+            row = tokens[int(np.argmax(missing))]
+            raise ValueError(f"sentence {detokenize(row)!r} is not in the sentence table")
+        return np.argmax(match, axis=-1).astype(np.int32)
+    match = jnp.all(tokens[:, None, :] == table[None, :, :], axis=-1)
+    return jnp.where(match.any(axis=-1), jnp.argmax(match, axis=-1), -1).astype(jnp.int32)

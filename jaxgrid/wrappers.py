@@ -1,10 +1,18 @@
-"""Environment wrappers."""
+"""Environment wrappers: gym-style auto-reset, for one env or a whole batch.
+
+:class:`AutoReset` wraps one env (``vmap`` it for a batch): it generates a fresh episode on
+every step and selects it where the episode ended. :class:`BatchedAutoReset` steps a batch
+and generates and observes fresh episodes only for the envs whose episode ended (through
+:func:`masked_map`), with the same bits as ``vmap(AutoReset(env).step)``; most steps end
+few episodes, so it is the one to use in training loops.
+"""
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
 from flax import struct
+from jax import lax
 
 from jaxgrid.environment import Environment
 from jaxgrid.types import State, TimeStep
@@ -46,3 +54,71 @@ class AutoReset(struct.PyTreeNode):
         obs = self.env.observe(state)
         info = {**ts.info, "final_observation": ts.observation}
         return state, ts.replace(observation=obs, info=info)
+
+
+class BatchedAutoReset(struct.PyTreeNode):
+    """:class:`AutoReset` over a leading env axis, resetting only the envs that ended.
+
+    ``reset(keys)`` takes one key per env; ``step(states, actions)`` takes a batch of states
+    and actions. The result has the same bits as ``vmap(AutoReset(env).step)``: the same
+    keys are split the same way, but fresh episodes are generated and observed only where
+    an episode ended (:func:`masked_map`), instead of for every env on every step.
+    """
+
+    env: Environment
+
+    def __getattr__(self, name):
+        if name == "env":
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+    def reset(self, keys: jax.Array) -> tuple[State, TimeStep]:
+        return jax.vmap(AutoReset(self.env).reset)(keys)
+
+    def step(self, states: State, actions: jax.Array) -> tuple[State, TimeStep]:
+        env = self.env
+        states, ts = jax.vmap(env.step)(states, actions)
+        key, layout_key = jnp.moveaxis(jax.vmap(jax.random.split)(states.key), 1, 0)
+        done = ts.terminated | ts.truncated
+
+        @jax.vmap
+        def fresh(keys):
+            state = env.generate(keys[0]).replace(key=keys[1])
+            return state, env.observe(state)
+
+        old = (states.replace(key=key), ts.observation)
+        states, obs = masked_map(done, fresh, (layout_key, key), old)
+        info = {**ts.info, "final_observation": ts.observation}
+        return states, ts.replace(observation=obs, info=info)
+
+
+def masked_map(mask: jax.Array, fn, inputs, other, chunk: int = 16):
+    """``where(mask, fn(inputs), other)`` row by row, calling ``fn`` on the masked rows only.
+
+    ``fn`` maps a batch (pytree, leading axis) to a batch; ``other`` is a pytree of its output
+    shapes. Few envs end an episode on a given step, so the masked rows go through ``fn``
+    ``chunk`` at a time in a ``while_loop``: one pass in the common case, as many as needed
+    when many episodes end together (also under ``vmap``). For row-wise ``fn`` whose rows do
+    not depend on the rest of the batch (env resets, the checker's frame embedding) the result
+    has the same bits as computing every row; a matmul's rows (the truncation bootstrap's
+    values) may round differently in the last place for another number of rows.
+    """
+    n = mask.shape[0]
+    chunk = min(chunk, n)
+    rank = jnp.cumsum(mask) - 1  # position of each masked row among the masked rows
+    rows = jnp.nonzero(mask, size=n + chunk, fill_value=0)[0]  # masked rows first; the zero
+    count = mask.sum()  # tail keeps every slice in range
+
+    def body(state):
+        start, out = state
+        take = lax.dynamic_slice_in_dim(rows, start, chunk)
+        new = fn(jax.tree.map(lambda x: x[take], inputs))
+        here = mask & (rank >= start) & (rank < start + chunk)
+        pick = jnp.clip(rank - start, 0, chunk - 1)
+
+        def place(a, b):
+            return jnp.where(here.reshape((n,) + (1,) * (b.ndim - 1)), a[pick], b)
+
+        return start + chunk, jax.tree.map(place, new, out)
+
+    return lax.while_loop(lambda s: s[0] < count, body, (jnp.int32(0), other))[1]

@@ -1,0 +1,115 @@
+"""PPO's pure learning pieces: GAE, the clipped loss, and the minibatch shuffle.
+
+They take arrays and the network's apply function, never a learner object, so they can be
+tested and reused on their own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from agents.config import PPOConfig
+
+
+def gae(
+    values: jax.Array,
+    rewards: jax.Array,
+    dones: jax.Array,
+    last_value: jax.Array,
+    gamma: float,
+    gae_lambda: float,
+) -> tuple[jax.Array, jax.Array]:
+    """Generalised advantage estimates and value targets over a rollout.
+
+    ``values``, ``rewards`` float32 (T, E); ``dones`` bool (T, E), True where step t ended
+    its episode (terminated or truncated); ``last_value`` float32 (E,), the value of the
+    observation after the last step. Returns ``(advantages, targets)``, both (T, E), with
+    ``targets = advantages + values``. A done step does not bootstrap from the next step
+    (which belongs to a new episode): a truncated step's reward must already include
+    ``gamma * V(final observation)``, as the rollout adds it.
+    """
+
+    def step(carry, x):
+        advantage, next_value = carry
+        value, reward, done = x
+        not_done = 1.0 - done.astype(jnp.float32)
+        delta = reward + gamma * next_value * not_done - value
+        advantage = delta + gamma * gae_lambda * not_done * advantage
+        return (advantage, value), advantage
+
+    init = (jnp.zeros_like(last_value), last_value)
+    _, advantages = lax.scan(step, init, (values, rewards, dones), reverse=True)
+    return advantages, advantages + values
+
+
+Policy = Callable[..., tuple[jax.Array, jax.Array, jax.Array]]
+
+
+def ppo_loss(
+    policy: Policy,
+    params,
+    batch: dict[str, jax.Array],
+    lagrange: jax.Array,
+    config: PPOConfig,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Clipped PPO loss of one minibatch, with the cost critic in the Lagrangian mode.
+
+    ``policy(params, image, direction, sentence) -> (logits (B, A), value (B,),
+    cost_value (B,))``. ``batch`` holds (B, ...) arrays ``image``, ``direction``,
+    ``sentence``, ``action``, ``log_prob``, ``value``, ``advantage``, ``target`` and, in the
+    Lagrangian mode, ``cost_value``, ``cost_advantage``, ``cost_target``. There the advantage
+    is ``(A - lagrange * A_cost) / (1 + lagrange)``. Advantages are normalised per minibatch;
+    value losses are clipped as in PPO2. Returns ``(loss, statistics)``.
+    """
+    c = config
+    logits, value, cost_value = policy(
+        params, batch["image"], batch["direction"], batch["sentence"]
+    )
+    log_probs = jax.nn.log_softmax(logits)
+    log_prob = jnp.take_along_axis(log_probs, batch["action"][:, None], axis=-1)[:, 0]
+    entropy = -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1).mean()
+
+    adv = batch["advantage"]
+    if c.reward_mode == "lagrangian":
+        adv = (adv - lagrange * batch["cost_advantage"]) / (1.0 + lagrange)
+    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    ratio = jnp.exp(log_prob - batch["log_prob"])
+    clipped = jnp.clip(ratio, 1 - c.clip_eps, 1 + c.clip_eps)
+    actor_loss = -jnp.minimum(ratio * adv, clipped * adv).mean()
+
+    def value_loss(pred, old, target):
+        pred_clipped = old + jnp.clip(pred - old, -c.clip_eps, c.clip_eps)
+        return 0.5 * jnp.maximum((pred - target) ** 2, (pred_clipped - target) ** 2).mean()
+
+    v_loss = value_loss(value, batch["value"], batch["target"])
+    cv_loss = jnp.zeros(())
+    if c.reward_mode == "lagrangian":
+        cv_loss = value_loss(cost_value, batch["cost_value"], batch["cost_target"])
+    total = actor_loss + c.vf_coef * (v_loss + cv_loss) - c.ent_coef * entropy
+    approx_kl = jnp.mean((ratio - 1.0) - jnp.log(ratio))
+    return total, {
+        "loss": total, "actor_loss": actor_loss, "value_loss": v_loss,
+        "cost_value_loss": cv_loss, "entropy": entropy, "approx_kl": approx_kl,
+    }  # fmt: skip
+
+
+def shuffle(key: jax.Array, n: int) -> jax.Array:
+    """A random permutation of ``range(n)`` for minibatching, from one sort of uint32.
+
+    The low ``b = bit_length(n - 1)`` bits of each random word are replaced by the index, and
+    one array of distinct words is sorted (cheaper than ``argsort``, which sorts (bits, index)
+    pairs). Ties among the high ``32 - b`` random bits keep index order; a tie only changes
+    which minibatch an item lands in when it straddles a minibatch boundary. Used up to
+    ``n = 2**16`` (at least 16 random bits); larger batches fall back to ``argsort``.
+    """
+    bits = jax.random.bits(key, (n,))
+    b = max(n - 1, 1).bit_length()
+    if b > 16:
+        return jnp.argsort(bits)
+    low = jnp.uint32((1 << b) - 1)
+    words = (bits & ~low) | jnp.arange(n, dtype=jnp.uint32)
+    return (lax.sort(words) & low).astype(jnp.int32)

@@ -1,0 +1,202 @@
+"""One step of the training rollout: policy, env, checker, reward shaping, bootstrap, stats.
+
+:func:`env_step` advances ``num_envs`` auto-resetting environments by one step and returns
+the :class:`Transition` PPO learns from. Each step also keeps a per-env ring buffer of the
+checker's embeddings of the last ``window - 1`` frames, so that the checker embeds each frame
+once (not ``window`` times) and scores the window ending at the new observation.
+Everything here is a pure function of arrays, the network's apply function and the frozen
+checker; :mod:`agents.train` scans it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import flax.struct as struct
+import jax
+import jax.numpy as jnp
+
+from agents.config import PPOConfig
+from agents.evaluation import violation_of
+from jaxgrid import language
+from jaxgrid.constants import EMPTY
+from jaxgrid.wrappers import BatchedAutoReset, masked_map
+
+
+class EnvCarry(struct.PyTreeNode):
+    """Everything with a leading ``num_envs`` axis (sharded over devices)."""
+
+    state: Any
+    obs: dict
+    sentence: jax.Array  # int32: row of the sentence table
+    frames: jax.Array  # float32 (E, n - 1, D): checker embeddings of the last n-1 frames
+    visited: jax.Array  # bool (E, W*H*2): (cell, carrying) pairs seen this episode, or (E, 1)
+    ep_return: jax.Array
+    ep_length: jax.Array
+
+
+class Transition(struct.PyTreeNode):
+    image: jax.Array
+    direction: jax.Array
+    sentence: jax.Array
+    action: jax.Array
+    log_prob: jax.Array
+    value: jax.Array
+    cost_value: jax.Array
+    reward: jax.Array  # shaped training reward, truncation bootstrap included
+    cost: jax.Array  # Lagrangian cost, truncation bootstrap included
+    done: jax.Array
+
+
+# (image, direction, sentence row) -> (logits, value, cost_value), parameters bound.
+BoundPolicy = Callable[[jax.Array, jax.Array, jax.Array], tuple[jax.Array, jax.Array, jax.Array]]
+
+
+def sentence_rows(obs: dict, table: jax.Array) -> jax.Array:
+    """int32 (E,): each env's row of the sentence table (0 for envs without a constraint)."""
+    rows = language.sentence_index(obs["constraint"], table) if "constraint" in obs else 0
+    return rows * jnp.ones_like(obs["direction"])
+
+
+def embed(checker, images: jax.Array) -> jax.Array:
+    """The checker's per-frame embeddings (..., D); a zero placeholder (..., 1) without one."""
+    if checker is None:
+        return jnp.zeros(images.shape[:-3] + (1,), jnp.float32)
+    return checker.embed_states(images)
+
+
+def empty_frames(checker, num_envs: int, view_size: int) -> jax.Array:
+    """(E, window - 1, D) embeddings of blank frames: the buffer at an episode's start."""
+    pad = embed(checker, jnp.zeros((1, view_size, view_size, 3), jnp.uint8))
+    # Without a checker one placeholder frame: orbax cannot checkpoint zero-size arrays.
+    n = checker.config.window - 1 if checker is not None else 1
+    return jnp.broadcast_to(pad[:, None, :], (num_envs, n, pad.shape[-1]))
+
+
+def push_frames(checker, frames: jax.Array, emb: jax.Array, start: jax.Array, view_size: int):
+    """Append ``emb`` (E, D) to the ring buffer; where ``start``, older frames are cleared."""
+    if checker is None or frames.shape[1] == 0:
+        return frames
+    pad = empty_frames(checker, frames.shape[0], view_size)
+    older = jnp.where(start[:, None, None], pad, frames)
+    return jnp.concatenate([older[:, 1:], emb[:, None]], axis=1)
+
+
+def checker_prob(checker, tokens, frames, emb, sentence) -> jax.Array:
+    """P(violation) of the window (frames..., emb) of each env; ``tokens`` is the table."""
+    window = jnp.concatenate([frames, emb[:, None]], axis=1)
+    lang = checker.encode_language(tokens)[sentence]
+    return jax.nn.sigmoid(checker.classify(window, lang))
+
+
+def visits(states, width: int, height: int, enabled: bool) -> jax.Array:
+    """bool (E, W*H*2): one-hot of each env's (cell, carrying or not) for the novelty bonus;
+    (E, 1) False when the bonus is off, so that nothing is paid for it."""
+    if not enabled:
+        return jnp.zeros((states.agent_pos.shape[0], 1), bool)
+    x, y = states.agent_pos[:, 0], states.agent_pos[:, 1]
+    carrying = (states.carrying[:, 0] != EMPTY).astype(jnp.int32)
+    cell = (x * height + y) * 2 + carrying
+    return cell[:, None] == jnp.arange(width * height * 2)
+
+
+def env_step(
+    carry: EnvCarry,
+    key: jax.Array,
+    *,
+    config: PPOConfig,
+    env: BatchedAutoReset,
+    policy: BoundPolicy,
+    table: jax.Array,
+    words: int,
+    checker=None,
+    penalty: jax.Array | float,
+    novelty: jax.Array | float,
+) -> tuple[EnvCarry, tuple[Transition, dict]]:
+    """One rollout step of every env: act, step, shape the reward, bootstrap truncations.
+
+    ``table`` is the int32 (K, L) sentence table, ``words`` its longest sentence's length
+    (the checker's GRU reads that many tokens). The training reward is the env reward minus
+    ``penalty`` times the ground-truth violation (``shaped``) or the checker's alarm
+    (``checker``; its probability with ``soft_checker``); ``lagrangian`` puts the alarm in
+    the cost instead. The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to
+    the episode. Where an episode was cut by the time limit (not terminated), the reward and
+    cost add ``gamma`` times the final observation's values, so GAE treats the step as
+    terminal without losing the future. Returns the next carry and (transition, statistics).
+    """
+    c = config
+    obs = carry.obs
+    logits, value, cost_value = policy(obs["image"], obs["direction"], carry.sentence)
+    action = jax.random.categorical(key, logits)
+    log_prob = jax.nn.log_softmax(logits)[jnp.arange(action.shape[0]), action]
+    states, ts = env.step(carry.state, action)
+    done = ts.terminated | ts.truncated
+    final = ts.info["final_observation"]
+    violation = violation_of(ts)
+
+    alarm = prob = jnp.zeros_like(ts.reward)
+    frames = carry.frames
+    if checker is not None:
+        emb = embed(checker, final["image"])
+        prob = checker_prob(checker, table[:, :words], carry.frames, emb, carry.sentence)
+        alarm = (prob > c.checker_threshold).astype(jnp.float32)
+        # Append the returned observation: the final one where the episode goes on; where it
+        # ended, the window restarts at the next episode's first observation, which only those
+        # few envs embed.
+        emb = masked_map(done, lambda i: embed(checker, i), ts.observation["image"], emb)
+        frames = push_frames(checker, carry.frames, emb, done, env.view_size)
+    signal = prob if c.soft_checker else alarm
+    cost = jnp.zeros_like(ts.reward)
+    reward = ts.reward
+    if c.reward_mode == "shaped":
+        reward = reward - penalty * violation.astype(jnp.float32)
+    elif c.reward_mode == "checker":
+        reward = reward - penalty * signal
+    elif c.reward_mode == "lagrangian":
+        cost = signal
+    # Novelty: the step reached a (cell, carrying) pair new to this episode. Where the episode
+    # ended, ``states`` is the next episode's start, whose visit opens a new set.
+    hit = visits(states, env.width, env.height, c.novelty_bonus != 0)
+    new = ~jnp.any(carry.visited & hit, axis=1) & ~done
+    bonus = novelty * new.astype(jnp.float32)  # novelty is 0 when the bonus is off
+    reward = reward + bonus
+    visited = jnp.where(done[:, None], hit, carry.visited | hit)
+
+    # A step that reaches the goal (or lava) on the last allowed step is both terminated and
+    # truncated, and is terminal: only cut episodes bootstrap, and only they run the policy.
+    truncated = ts.truncated & ~ts.terminated
+
+    def final_values(rows):
+        _, v, cv = policy(*rows)
+        return v, cv
+
+    zeros = jnp.zeros_like(value)
+    rows = (final["image"], final["direction"], carry.sentence)
+    v_final, cv_final = masked_map(truncated, final_values, rows, (zeros, zeros))
+    trunc = truncated.astype(jnp.float32)
+    transition = Transition(
+        image=obs["image"], direction=obs["direction"], sentence=carry.sentence,
+        action=action, log_prob=log_prob, value=value, cost_value=cost_value,
+        reward=reward + c.gamma * trunc * v_final, cost=cost + c.gamma * trunc * cv_final,
+        done=done,
+    )  # fmt: skip
+    ep_return = carry.ep_return + ts.reward
+    ep_length = carry.ep_length + 1
+    stats = {
+        "episodes": done.sum(),
+        "episode_return": jnp.where(done, ep_return, 0.0).sum(),
+        "successes": (done & (ts.reward > 0)).sum(),
+        "violations": violation.sum(),
+        "alarms": alarm.sum(),
+        "cost": cost.sum(),
+        "novelty": bonus.sum(),
+    }
+    # The constraint is fixed for an episode: look it up only where one began.
+    picked = {k: ts.observation[k] for k in ("constraint", "direction") if k in ts.observation}
+    sentence = masked_map(done, lambda o: sentence_rows(o, table), picked, carry.sentence)
+    carry = EnvCarry(
+        state=states, obs=ts.observation, sentence=sentence, frames=frames, visited=visited,
+        ep_return=jnp.where(done, 0.0, ep_return), ep_length=jnp.where(done, 0, ep_length),
+    )  # fmt: skip
+    return carry, (transition, stats)
