@@ -11,7 +11,7 @@ from helpers.checker_cases import TINY
 
 from checker import Checker, CheckerConfig
 from checker.model import init_params
-from checker.reward import sentence_table
+from jaxgrid.language import sentence_table
 
 # ------------------------------------------------------------------------------------ model
 

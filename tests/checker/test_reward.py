@@ -10,8 +10,9 @@ from helpers.checker_cases import TINY
 
 import checker
 from checker import TrainedChecker, init_buffer, push, violation_prob
-from checker.reward import sentence_codes, sentence_table
+from checker.reward import sentence_codes
 from jaxgrid import language
+from jaxgrid.language import sentence_table
 
 # ------------------------------------------------------------------------------ ring buffer
 
