@@ -1,7 +1,7 @@
 """Evaluation episodes: a batch of fresh episodes played once each, on device.
 
-The protocol of DESIGN §7: episodes start from fixed evaluation seeds (the same keys for
-every method), run with the raw ``env.step`` (no auto-reset) for at most ``max_steps``
+Episodes start from fixed evaluation seeds (the same keys for every method, so methods are
+compared on the same episodes), run with the raw ``env.step`` (no auto-reset) for at most ``max_steps``
 steps, and report per episode whether it reached the goal, whether it violated its
 constraint at least once, and its return in **environment reward only** (shaping never
 enters evaluation).

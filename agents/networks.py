@@ -37,11 +37,9 @@ _SIZES = (len(OBJECT_NAMES), len(COLOR_NAMES), len(STATE_NAMES))
 def _ortho(scale: float = 1.0):
     """Flax's orthogonal initializer, computed one key at a time under ``vmap``.
 
-    Same values as ``nn.initializers.orthogonal(scale)``. Batched (``vmap``-ed over seeds)
-    LAPACK QR calls inside one jitted program were seen to hang XLA:CPU (jax/jaxlib 0.10.2:
-    ``jax.jit(jax.vmap(ActorCritic.init))`` never completed, every worker thread idle), so
-    under ``vmap`` the QR runs in a ``lax.map`` loop instead (``sequential_vmap``); it is an
-    initialisation-only cost.
+    Same values as ``nn.initializers.orthogonal(scale)``. Under ``vmap`` the QR runs in a
+    ``lax.map`` loop (``sequential_vmap``), because batched LAPACK QR calls inside one jitted
+    program can hang XLA:CPU (``docs/decisions.md``); it is an initialisation-only cost.
     """
     base = nn.initializers.orthogonal(scale)
 
@@ -62,10 +60,9 @@ class PatchConv(nn.Module):
 
     Same parameters and result as ``nn.Conv(features, (k, k), padding="VALID")``. The kernel
     is unrolled into an ``(H*W*C, OH*OW*features)`` matrix through a constant 0/1 tensor of
-    tap positions, so the layer is one matmul on the flattened input. On XLA:CPU a
-    convolution inside PPO's minibatch ``lax.scan`` ran about 2x slower than outside it, and
-    the patch-slicing form spent its backward pass in many small transposes; the unrolled
-    matmul made a whole update 1.24x faster (``benchmarks/train_speed.py``, 5x5 views).
+    tap positions, so the layer is one matmul on the flattened input, forward and backward:
+    on XLA:CPU that is faster than a convolution inside PPO's minibatch ``lax.scan``
+    (figures in ``docs/decisions.md``).
     """
 
     features: int
@@ -127,15 +124,13 @@ class ActorCritic(nn.Module):
     ``tanh(Dense(obs) * (1 + scale) + shift)``, then one more tanh layer. Avoiding *the red
     door* needs the product of "red" in the sentence and "red door ahead" in the view, which
     an additive merge expresses poorly; the per-cell modulation lets the sentence mark the
-    forbidden door where it stands, before the convolution. Measured on TwoRooms (shaped
-    reward, lr 1e-3, penalty from 20% of 1.5M steps, seeds 0 and 1): with only the second
-    FiLM the agents ended at 45% and 19% of episodes through the forbidden door (45% is
-    ignoring the sentence), with both at 0% and 0%.
+    forbidden door where it stands, before the convolution; without it agents learn to ignore
+    the sentence (``docs/decisions.md``).
     The projection depends on the sentence only, so it is computed once per sentence of the
     table rather than once per sample.
 
-    Sizes are small on purpose: the whole PPO update runs on 2 CPU cores, where the network
-    is most of the cost (measured in ``benchmarks/train_speed.py``).
+    Sizes are small on purpose: on CPU the network is most of the cost of a PPO update
+    (``python -m benchmarks.train_speed --profile``).
     """
 
     num_actions: int = 7
