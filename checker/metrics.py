@@ -1,4 +1,4 @@
-"""The checker measured as a classifier (DESIGN.md §6): plain numpy, JSON-ready floats.
+"""The checker measured as a classifier: plain numpy, JSON-ready floats.
 
 * :func:`binary_metrics`: accuracy, precision, recall, F1 at a threshold, AUROC, ECE;
 * :func:`auroc`: exact rank statistic (Mann-Whitney U) with average ranks for ties, so a

@@ -1,4 +1,4 @@
-"""The constraint checker network (DESIGN.md §6): is the agent about to break the constraint?
+"""The constraint checker network: is the agent about to break the constraint?
 
 Inputs: a window of the last ``n`` egocentric observations, uint8 ``(B, n, V, V, 3)`` MiniGrid
 encodings ordered oldest -> newest (the all-zero frame, "unseen" everywhere, pads windows at
@@ -31,8 +31,8 @@ whose cell is ``(0, 0, 0)``.
 The trajectory module runs every env step for every environment inside PPO, so it is kept
 small: 16-d cell codes, one 3x3 convolution with 16 channels and VALID padding (5x5 -> 3x3;
 every cell still reaches the state code) and a 64-d state code cost about 30k multiply-adds
-per frame. VALID rather than SAME padding: on XLA:CPU the padded 5x5 convolution was measured
-almost 5x slower.
+per frame. VALID rather than SAME padding, because the padded convolution is much slower on
+XLA:CPU (figures in ``docs/decisions.md``).
 """
 
 from __future__ import annotations

@@ -1,4 +1,7 @@
-"""Behaviour policies for collecting checker data (no ``agents`` import; DESIGN.md §1).
+"""Behaviour policies for collecting checker data.
+
+They live here, not in ``agents``, because ``checker`` never imports ``agents``; a learned
+agent enters as a policy function.
 
 A behaviour policy is a function ``policy_fn(policy_params, obs, state, key) -> actions``:
 ``obs`` is the batched observation dict, ``state`` the batched env state, ``actions`` int32

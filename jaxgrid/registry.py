@@ -32,7 +32,7 @@ def _lavagap(size: int) -> Callable[[], Environment]:
 
 
 def _scenarios() -> dict[str, Callable[[], Environment]]:
-    # The paper's scenarios: 5x5 view, see_through_walls=False (DESIGN.md §4).
+    # The paper's scenarios: 5x5 view, see_through_walls=False.
     two = dict(width=9, height=7, max_steps=100, view_size=5)
     return {
         "TwoRooms-v0": lambda: TwoRooms(**two),

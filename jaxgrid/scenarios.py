@@ -1,4 +1,4 @@
-"""The paper's three scenarios, each episode with a fresh random constraint (DESIGN.md §4-5).
+"""The paper's three scenarios, each episode with a fresh random constraint.
 
 * ``TwoRooms-v0``: two rooms split by a vertical wall holding two closed doors of distinct
   colours; agent and goal start in different rooms.
