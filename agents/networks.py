@@ -27,10 +27,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from checker.model import encode_sentence
 from jaxgrid import language
 from jaxgrid.constants import COLOR_NAMES, OBJECT_NAMES, STATE_NAMES
 
-_PAD_ID = language.VOCAB.index(language.PAD)
 _SIZES = (len(OBJECT_NAMES), len(COLOR_NAMES), len(STATE_NAMES))
 
 
@@ -104,12 +104,9 @@ class SentenceEncoder(nn.Module):
 
     @nn.compact
     def __call__(self, tokens: jax.Array) -> jax.Array:
-        tokens = tokens.astype(jnp.int32)
-        lengths = jnp.maximum(jnp.sum(tokens != _PAD_ID, axis=-1), 1)
-        words = nn.Embed(self.vocab_size, self.word_dim)(tokens)
-        rnn = nn.RNN(nn.GRUCell(self.gru_dim, recurrent_kernel_init=_ortho()), return_carry=True)
-        carry, _ = rnn(words, seq_lengths=lengths)
-        return carry
+        embed = nn.Embed(self.vocab_size, self.word_dim)
+        rnn = nn.RNN(nn.GRUCell(self.gru_dim, recurrent_kernel_init=_ortho()))
+        return encode_sentence(embed, rnn, tokens)
 
 
 class ActorCritic(nn.Module):

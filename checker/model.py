@@ -137,11 +137,7 @@ class Checker(nn.Module):
 
     def encode_language(self, tokens: jax.Array) -> jax.Array:
         """int ``(B, L)`` ids -> float32 ``(B, gru_dim)``: the GRU state at the last real token."""
-        tokens = jnp.asarray(tokens, jnp.int32)
-        pos = jnp.arange(1, tokens.shape[-1] + 1, dtype=jnp.int32)
-        lengths = jnp.max(jnp.where(tokens != language.VOCAB.index(language.PAD), pos, 0), -1)
-        words = self.word_embed(tokens)
-        return self.gru(words, seq_lengths=lengths, return_carry=True)[0]
+        return encode_sentence(self.word_embed, self.gru, tokens)
 
     def embed_states(self, frames: jax.Array) -> jax.Array:
         """uint8 ``(..., V, V, 3)`` frames -> float32 ``(..., state_dim)``."""
@@ -167,6 +163,18 @@ class Checker(nn.Module):
         for layer in self.hidden:
             h = nn.relu(layer(h))
         return self.head(h)[..., 0].astype(jnp.float32)
+
+
+def encode_sentence(embed: nn.Embed, gru: nn.RNN, tokens: jax.Array) -> jax.Array:
+    """The sentence code of right-padded token ids (..., L): ``gru``'s carry after the last
+    real word (:func:`jaxgrid.language.sentence_lengths`), so padding never touches it.
+
+    The one sentence encoding of the repository: the checker and the policy call it with
+    their own ``Embed`` and ``RNN(GRUCell)`` submodules (``return_carry=False`` RNNs).
+    """
+    tokens = jnp.asarray(tokens, jnp.int32)
+    lengths = language.sentence_lengths(tokens)
+    return gru(embed(tokens), seq_lengths=lengths, return_carry=True)[0]
 
 
 def _dummy_inputs(config: CheckerConfig):

@@ -494,6 +494,17 @@ def sentence_table(env: Any = None) -> np.ndarray:
     return np.asarray(env.constraint_table()["tokens"], np.int32)
 
 
+def sentence_lengths(tokens: Any) -> Any:
+    """int32 (...,): the number of real tokens of right-padded id rows (..., L).
+
+    The position of the last non-pad token, so a sentence encoder that stops there reads every
+    real word and no padding; an all-pad row has length 0.
+    """
+    tokens = jnp.asarray(tokens)
+    pos = jnp.arange(1, tokens.shape[-1] + 1, dtype=jnp.int32)
+    return jnp.max(jnp.where(tokens != VOCAB.index(PAD), pos, 0), -1)
+
+
 def sentence_index(tokens: Any, table: Any) -> Any:
     """Row of ``table`` (K, L) equal to each row of ``tokens`` (B, L), as int32 (B,).
 
