@@ -1,1 +1,13 @@
-"""agents package (see ../shared/DESIGN.md §1)."""
+"""PPO for language-constrained grid worlds, fused into one jitted update.
+
+* :mod:`agents.config`: :class:`~agents.config.PPOConfig`, the frozen settings of a run;
+* :mod:`agents.networks`: the actor-critic conditioned on the view and the sentence;
+* :mod:`agents.rollout`: one env step with policy, checker, reward shaping and bootstrap;
+* :mod:`agents.losses`: :func:`~agents.losses.gae`, :func:`~agents.losses.ppo_loss`;
+* :mod:`agents.train`: ``make_train(config, checker) -> train(key)`` and the
+  :class:`~agents.train.Learner` whose pieces it composes;
+* :mod:`agents.runner`: seeds, devices, progress, logs, checkpoints and resume;
+* :mod:`agents.evaluation`: fixed-seed evaluation episodes.
+
+``agents`` imports ``checker`` and ``jaxgrid``, never ``experiments``.
+"""
