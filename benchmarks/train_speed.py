@@ -5,13 +5,13 @@
     {"mode": "checker", "sps": ..., "compile_s": ..., "device": ..., "baseline_sps": ...,
      "ratio": ..., "num_envs": 256, "num_steps": 128, "epochs": 4, "minibatches": 8, ...}
 
-Protocol (DESIGN.md §8, "Training throughput"):
+Protocol (compile ahead, then time; :mod:`benchmarks.timing`):
 
-* ours: ``agents.ppo`` on ``--env`` (TwoRooms-v0), one :class:`~agents.ppo.Learner` per mode;
+* ours: :func:`agents.train.make_learner` on ``--env`` (TwoRooms-v0), one learner per mode;
   the checker modes use a freshly initialised checker (its cost does not depend on its
   weights). The timed executable is ``jit(lax.scan(learner.update))`` over ``U`` updates, the
-  form training runs in (:meth:`Learner.chunk` scans updates too); it is compiled with
-  ``.lower().compile()``, which is ``compile_s``, and the runner state is donated;
+  form training runs in (:meth:`Learner.chunk` scans updates too); it is compiled ahead,
+  which is ``compile_s``, and the runner state is donated;
 * baseline: :func:`benchmarks.purejaxrl_ppo.make_train` (NAVIX DoorKey-8x8, PureJaxRL's
   ``ppo_minigrid`` structure) with the same envs x steps x epochs x minibatches and ``U``
   updates, also compiled ahead and then run (its ``train`` includes a negligible init);
@@ -22,32 +22,32 @@ Protocol (DESIGN.md §8, "Training throughput"):
   over rounds (``sps_all``/``ratio_all`` list them), ``sps_overall`` is all timed steps over
   all timed seconds. Every call ends with ``block_until_ready``; nothing else is timed.
 
-``--profile`` adds a ``breakdown`` to each line, seconds per update; each piece is jitted on
-its own, the pieces are timed in ``min(--repeats, 5)`` interleaved rounds and every figure
-(differences included) is a median over rounds:
+``--profile`` adds a ``breakdown`` to each line, seconds per update; each piece is compiled
+on its own from the learner's public API, the pieces are timed in ``min(--repeats, 5)``
+interleaved rounds and every figure (differences included) is a median over rounds:
 
-* ``update_s``: one ``learner.update``; ``rollout_s``: the ``lax.scan`` of the learner's env
-  step alone; ``optimisation_s`` = update - rollout (GAE, shuffles, epochs x minibatches);
-* ``env_step_s``: bare env steps (random actions, the same auto-reset wrapper, ``vmap``);
+* ``update_s``: one ``learner.update``; ``rollout_s``: one ``learner.rollout`` alone;
+  ``optimisation_s`` = update - rollout (GAE, shuffles, epochs x minibatches);
+* ``env_step_s``: bare env steps (random actions, the learner's auto-reset wrapper
+  :class:`jaxgrid.wrappers.BatchedAutoReset`);
 * ``policy_and_bookkeeping_s``: rollout without checker - env steps (policy forward pass,
   action sampling, truncation bootstrap, sentence lookup, episode statistics);
 * ``checker_s``: rollout of this mode - rollout without checker (0 for none/shaped);
-* ``loss_forward_s``: the loss's forward pass alone over epochs x minibatches minibatches;
-  ``backward_optimizer_gae_shuffle_s`` = optimisation - loss forward.
+* ``loss_forward_s``: :func:`agents.losses.ppo_loss` alone over epochs x minibatches
+  minibatches, without gradients; ``backward_optimizer_gae_shuffle_s`` = optimisation - loss
+  forward.
 
 For the baseline, ``baseline_breakdown`` has its seconds per update and NAVIX's bare env
-steps per update. The pieces use the learner's private functions: a profile, not an API.
+steps per update.
 
 ``--ops N`` adds ``ops``: the timed executable run twice under ``jax.profiler``, and the
 ``N`` XLA kernels and the ``N`` places (pass and Flax module, e.g. ``backward:
 ActorCritic/cells``) that took the most of it, in ms per update (:mod:`benchmarks.xla_ops`).
 
-Progress goes to stderr; stdout has the JSON lines only. On a shared machine quote the
-ratios, not the absolute numbers, and mind the load (``load_avg_1m_at_start``): measured on
-2 cores, the baseline's large multi-threaded matmuls slowed down about 2x when another
-process took a core, ours (many small ops) barely, so contention raises the ratio (none:
-0.62 on a quiet machine in ``benchmarks/results/train_speed_cpu.json``, about 0.7 when
-contended). ``taskset -c 0 python -m
+Progress goes to stderr; stdout has the JSON lines only. Quote the ratios, not the absolute
+numbers, and mind the load (``load_avg_1m_at_start``): another process on the machine slows
+the baseline's large multi-threaded matmuls more than our many small ops, so contention
+raises the ratio (figures in ``docs/decisions.md``). ``taskset -c 0 python -m
 benchmarks.train_speed`` pins both to one core for a steadier comparison.
 """
 
@@ -59,14 +59,17 @@ import json
 import os
 import statistics
 import sys
-import time
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 from jax import lax
 
-MODES = ("none", "shaped", "checker", "lagrangian")
+from agents.config import REWARD_MODES
+from benchmarks.timing import compile_ahead, timed
+from jaxgrid.io import write_jsonl
+
+MODES = REWARD_MODES
 DEFAULTS = {
     "env": "TwoRooms-v0",
     "num_envs": 256,
@@ -88,12 +91,6 @@ def device_description() -> str:
     return describe()
 
 
-def _timed(fn, *args):
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn(*args))
-    return out, time.perf_counter() - t0
-
-
 def _median(xs):
     return float(statistics.median(xs))
 
@@ -110,7 +107,7 @@ def make_checker(env):
 
 
 def make_config(mode: str, sizes: dict, updates: int):
-    from agents.ppo import PPOConfig
+    from agents.config import PPOConfig
 
     return PPOConfig(
         env_id=sizes["env"],
@@ -130,7 +127,7 @@ class Ours:
     """One reward mode: its learner, a runner state, and ``jit(scan of U updates)``."""
 
     def __init__(self, mode: str, sizes: dict, updates: int, checker=None):
-        from agents.ppo import make_learner
+        from agents.train import make_learner
 
         self.mode, self.updates = mode, updates
         self.config = make_config(mode, sizes, updates)
@@ -142,13 +139,11 @@ class Ours:
             runner, metrics = lax.scan(lambda r, _: learner.update(r), runner, None, updates)
             return runner, metrics["loss"][-1]
 
-        t0 = time.perf_counter()
-        self.compiled = jax.jit(run, donate_argnums=0).lower(self.runner).compile()
-        self.compile_s = time.perf_counter() - t0
+        self.compiled, self.compile_s = compile_ahead(run, self.runner, donate_argnums=0)
 
     def run(self) -> tuple[float, float]:
         """Time one call of ``U`` updates; returns (env steps, seconds)."""
-        (self.runner, _), dt = _timed(self.compiled, self.runner)
+        (self.runner, _), dt = timed(self.compiled, self.runner)
         return self.updates * self.config.batch_size, dt
 
 
@@ -171,14 +166,11 @@ class Baseline:
         }
         self.steps, self.calls = updates * batch, 0
         train = purejaxrl_ppo.make_train(self.config)
-        key = jax.random.PRNGKey(0)
-        t0 = time.perf_counter()
-        self.compiled = jax.jit(train).lower(key).compile()
-        self.compile_s = time.perf_counter() - t0
+        self.compiled, self.compile_s = compile_ahead(train, jax.random.PRNGKey(0))
 
     def run(self) -> tuple[float, float]:
         self.calls += 1
-        _, dt = _timed(self.compiled, jax.random.PRNGKey(self.calls))
+        _, dt = timed(self.compiled, jax.random.PRNGKey(self.calls))
         return self.steps, dt
 
 
@@ -186,30 +178,29 @@ class Baseline:
 # Profile: where the time of one update goes
 # ----------------------------------------------------------------------------------------
 def _rollout_fn(learner):
-    c = learner.config
+    """One ``learner.rollout``, every output reduced so that XLA keeps all of its work."""
 
     def rollout(runner):
-        params = runner.params
-        lang_table = learner._lang_table(params)
-        keys = jax.random.split(runner.key, c.num_steps)
-        env, (traj, _) = lax.scan(
-            lambda carry, k: learner._env_step(params, lang_table, carry, k), runner.env, keys
-        )
-        # Reduce every leaf, so that XLA keeps all of the rollout's work (none is dead).
-        return jax.tree.map(lambda x: x.astype(jnp.float32).sum(), (traj, env.obs))
+        env, traj, stats = learner.rollout(runner, runner.key)
+        return jax.tree.map(lambda x: x.astype(jnp.float32).sum(), (traj, stats, env.obs))
 
-    return jax.jit(rollout)
+    return rollout
 
 
 def _env_only_fn(env, num_envs: int, num_steps: int, num_actions: int, gymnax: bool = False):
-    """Bare env steps with random actions under ``vmap``, same horizon as one rollout."""
+    """Bare env steps with random actions, same horizon as one rollout.
+
+    ``env`` is batched (``reset(keys)``, ``step(states, actions)``, as
+    :class:`jaxgrid.wrappers.BatchedAutoReset`) or, with ``gymnax``, a single gymnax-style env
+    that is vmapped here.
+    """
 
     def run(key):
         keys = jax.random.split(key, num_envs)
         if gymnax:
             _, states = jax.vmap(env.reset)(keys)
         else:
-            states, _ = jax.vmap(env.reset)(keys)
+            states, _ = env.reset(keys)
 
         def body(states, k):
             actions = jax.random.randint(k, (num_envs,), 0, num_actions)
@@ -218,7 +209,7 @@ def _env_only_fn(env, num_envs: int, num_steps: int, num_actions: int, gymnax: b
                     jax.random.split(k, num_envs), states, actions
                 )
             else:
-                states, ts = jax.vmap(env.step)(states, actions)
+                states, ts = env.step(states, actions)
                 obs, reward = ts.observation, ts.reward
             # Use the observation too, or XLA would drop its computation.
             used = sum(x.astype(jnp.float32).sum() for x in jax.tree.leaves(obs))
@@ -227,20 +218,24 @@ def _env_only_fn(env, num_envs: int, num_steps: int, num_actions: int, gymnax: b
         _, rewards = lax.scan(body, states, jax.random.split(key, num_steps))
         return rewards.sum()
 
-    return jax.jit(run)
+    return run
 
 
 def _loss_forward_fn(learner):
-    """The loss's forward pass over ``epochs x minibatches`` minibatches, without gradients.
+    """:func:`agents.losses.ppo_loss` over ``epochs x minibatches`` minibatches, no gradients.
 
     Each step slices its own minibatch out of a full-size batch (built from the current
-    observations), so that XLA cannot hoist the network out of the loop.
+    observations), so that XLA cannot hoist the network out of the loop. The policy is the
+    learner's, as its update calls the loss.
     """
+    from agents.losses import ppo_loss
+
     c = learner.config
     size = c.batch_size // c.num_minibatches
+    policy = lambda params, *x: learner.policy(params)(*x)  # noqa: E731
 
     def run(runner):
-        obs, n = runner.env.obs, c.num_envs
+        obs = runner.env.obs
         tile = lambda x: jnp.tile(x, (c.num_steps,) + (1,) * (x.ndim - 1))  # noqa: E731
         zeros = jnp.zeros((c.batch_size,), jnp.float32)
         batch = {
@@ -250,26 +245,30 @@ def _loss_forward_fn(learner):
             "cost_target": zeros, "cost_advantage": zeros,
             "advantage": jax.random.normal(runner.key, (c.batch_size,)),
         }  # fmt: skip
-        assert batch["image"].shape[0] == c.batch_size == c.num_steps * n
 
         def body(total, i):
             start = (i % c.num_minibatches) * size
             mb = jax.tree.map(lambda x: lax.dynamic_slice_in_dim(x, start, size), batch)
-            loss, _ = learner._loss(runner.params, mb, runner.lagrange)
+            loss, _ = ppo_loss(policy, runner.params, mb, runner.lagrange, c)
             return total + loss, None
 
         steps = jnp.arange(c.update_epochs * c.num_minibatches)
         return lax.scan(body, jnp.zeros(()), steps)[0]
 
-    return jax.jit(run)
+    return run
 
 
 def _interleaved(pieces: dict, repeats: int) -> list[dict]:
-    """Warm each ``name: (fn, arg)`` up, then time them all in turn, ``repeats`` rounds."""
-    for fn, arg in pieces.values():
-        jax.block_until_ready(fn(arg))
+    """Compile each ``name: (fn, arg)`` ahead, then time them all in turn, ``repeats`` rounds.
+
+    ``fn`` is a plain function (compiled here) or an already compiled executable.
+    """
+    compiled = {
+        name: (fn if isinstance(fn, jax.stages.Compiled) else compile_ahead(fn, arg)[0], arg)
+        for name, (fn, arg) in pieces.items()
+    }
     return [
-        {name: _timed(fn, arg)[1] for name, (fn, arg) in pieces.items()} for _ in range(repeats)
+        {name: timed(fn, arg)[1] for name, (fn, arg) in compiled.items()} for _ in range(repeats)
     ]
 
 
@@ -277,23 +276,22 @@ def profile_ours(ours: Ours, repeats: int, cache: dict) -> dict:
     """Seconds per update of the pieces of ``ours``'s update.
 
     The pieces are timed in interleaved rounds and every figure, differences included, is a
-    median over rounds, so that a change of the machine's load hits all pieces alike. Uses
-    the learner's private pieces (``_env_step``, ``_loss``, ...): a profile, not an API.
+    median over rounds, so that a change of the machine's load hits all pieces alike.
     """
-    from agents.ppo import make_learner
-    from jaxgrid.wrappers import AutoReset
+    from agents.train import make_learner
+    from jaxgrid.wrappers import BatchedAutoReset
 
     learner, c = ours.learner, ours.config
     runner = ours.runner
     if "env" not in cache:
-        env = AutoReset(c.make_env())
+        env = BatchedAutoReset(c.make_env())
         fn = _env_only_fn(env, c.num_envs, c.num_steps, env.num_actions)
         cache["env"] = (fn, jax.random.PRNGKey(1))
         # The same rollout without any checker work (the none/shaped modes' rollout).
         plain = make_learner(make_config("none", _sizes_of(c), ours.updates))
         cache["plain"] = (_rollout_fn(plain), jax.jit(plain.init)(jax.random.PRNGKey(0)))
     pieces = {
-        "update": (jax.jit(learner.update), runner),
+        "update": (learner.update, runner),
         "rollout": (_rollout_fn(learner), runner),
         "plain": cache["plain"],
         "env": cache["env"],
@@ -352,53 +350,31 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m benchmarks.train_speed",
         description="Env steps/s of the fused PPO per reward mode vs the PureJaxRL baseline.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument(
-        "--modes",
-        nargs="+",
-        default=list(MODES),
-        choices=MODES,
-        metavar="MODE",
-        help=f"reward modes to time (default: all of {', '.join(MODES)})",
-    )
-    p.add_argument("--env", default=DEFAULTS["env"], help="jaxgrid env id (default %(default)s)")
-    p.add_argument(
-        "--timesteps",
-        type=int,
-        default=DEFAULTS["timesteps"],
-        help="env steps timed per mode, over all repeats (default %(default)s)",
-    )
-    p.add_argument("--num-envs", type=int, default=DEFAULTS["num_envs"])
-    p.add_argument("--num-steps", type=int, default=DEFAULTS["num_steps"])
-    p.add_argument("--epochs", type=int, default=DEFAULTS["epochs"])
-    p.add_argument("--minibatches", type=int, default=DEFAULTS["minibatches"])
-    p.add_argument(
-        "--repeats",
-        type=int,
-        default=DEFAULTS["repeats"],
-        help="timed calls per mode; sps and ratio are medians (default %(default)s)",
-    )
-    p.add_argument(
-        "--baseline",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="also time the PureJaxRL baseline (needs navix; default on)",
-    )
-    p.add_argument(
-        "--profile", action="store_true", help="add a per-update time breakdown to each line"
-    )
-    p.add_argument(
-        "--ops",
-        type=int,
-        default=0,
-        metavar="N",
-        help="add the N costliest XLA kernels and model places of an update (profiler trace)",
-    )
-    p.add_argument(
-        "--mlp",
-        action="store_true",
-        help="time the policy without its convolution (PPOConfig.conv_channels=())",
-    )
+    p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES, metavar="MODE",
+                   help=f"reward modes to time, of {', '.join(MODES)}")
+    p.add_argument("--env", default=DEFAULTS["env"], help="jaxgrid env id")
+    p.add_argument("--timesteps", type=int, default=DEFAULTS["timesteps"],
+                   help="env steps timed per mode, over all repeats")
+    p.add_argument("--num-envs", type=int, default=DEFAULTS["num_envs"], help="parallel envs")
+    p.add_argument("--num-steps", type=int, default=DEFAULTS["num_steps"],
+                   help="rollout length per update")
+    p.add_argument("--epochs", type=int, default=DEFAULTS["epochs"],
+                   help="epochs over each batch")
+    p.add_argument("--minibatches", type=int, default=DEFAULTS["minibatches"],
+                   help="minibatches per epoch")
+    p.add_argument("--repeats", type=int, default=DEFAULTS["repeats"],
+                   help="timed calls per mode; sps and ratio are medians")
+    p.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=True,
+                   help="also time the PureJaxRL baseline (needs navix)")
+    p.add_argument("--profile", action="store_true", default=False,
+                   help="add a per-update time breakdown to each line")
+    p.add_argument("--ops", type=int, default=0, metavar="N",
+                   help="add the N costliest XLA kernels and model places of an update "
+                   "(profiler trace; 0: off)")
+    p.add_argument("--mlp", action="store_true", default=False,
+                   help="time the policy without its convolution (PPOConfig.conv_channels=())")
     p.add_argument("--out", default=None, help="also write the JSON lines to this file")
     return p  # fmt: skip
 
@@ -509,10 +485,7 @@ def main(argv=None) -> list[dict[str, Any]]:
             )
         if args.profile:
             _log(f"profiling mode {mode} ...")
-            try:
-                line["breakdown"] = profile_ours(ours, profile_repeats, cache)
-            except Exception as e:  # noqa: BLE001 - the learner's internals may have moved
-                line["breakdown"] = {"error": f"{type(e).__name__}: {e}"}
+            line["breakdown"] = profile_ours(ours, profile_repeats, cache)
             if base_profile is not None:
                 line["baseline_breakdown"] = base_profile
         if args.ops:
@@ -529,10 +502,7 @@ def main(argv=None) -> list[dict[str, Any]]:
         print(json.dumps(line), flush=True)
 
     if args.out:
-        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-        with open(args.out, "w") as f:
-            for line in lines:
-                f.write(json.dumps(line) + "\n")
+        write_jsonl(args.out, lines)
         _log(f"wrote {args.out}")
     return lines
 

@@ -1,8 +1,7 @@
-"""Smoke test of ``python -m benchmarks.train_speed`` at a tiny size (no baseline).
+"""``python -m benchmarks.train_speed`` at a tiny size (4 envs x 8 steps, no baseline).
 
-The default test compiles the fused update twice (modes none and checker, 4 envs x 8 steps):
-about 25 s on 2 idle cores, up to 40 s when they are shared. The slow-marked test adds the
-baseline and ``--profile``.
+The first test compiles the fused update twice (modes none and checker): about 25 s on 2
+idle cores. The slow-marked tests add ``--profile`` and the baseline.
 """
 
 import json
@@ -85,6 +84,28 @@ def test_bad_flags_exit_with_usage(argv, capsys):
         train_speed.main(argv)
     assert exc.value.code != 0
     assert "usage:" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # six more compiles: about a minute on 2 shared cores
+def test_profile_breakdown_from_the_public_api():
+    (line,) = train_speed.main(["--modes", "checker", "--profile"] + TINY[3:])
+    parts = line["breakdown"]
+    for key in ("update_s", "rollout_s", "env_step_s", "loss_forward_s"):
+        assert math.isfinite(parts[key]) and parts[key] > 0, (key, parts)
+    # Differences of medians: finite, possibly < 0 at this tiny size.
+    for key in ("optimisation_s", "checker_s", "policy_and_bookkeeping_s",
+                "backward_optimizer_gae_shuffle_s"):  # fmt: skip
+        assert math.isfinite(parts[key])
+    assert set(parts["fractions"]) == {"env_step", "policy_and_bookkeeping", "checker",
+                                       "loss_forward", "backward_optimizer_gae_shuffle"}
+    assert "baseline_breakdown" not in line
+
+
+def test_help_shows_every_default(capsys):
+    with pytest.raises(SystemExit):
+        train_speed.main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert text.count("(default: ") == 13  # every flag but --help
 
 
 @pytest.mark.slow  # baseline + profile compiles: 1-2 minutes on 2 shared cores
