@@ -58,7 +58,7 @@ class Learner(struct.PyTreeNode):
     """
 
     config: PPOConfig = struct.field(pytree_node=False)
-    env: BatchedAutoReset = struct.field(pytree_node=False)
+    env: Any = struct.field(pytree_node=False)  # the raw env; training steps it batched
     network: ActorCritic = struct.field(pytree_node=False)
     optimizer: Any = struct.field(pytree_node=False)
     has_language: bool = struct.field(pytree_node=False, default=True)
@@ -69,6 +69,11 @@ class Learner(struct.PyTreeNode):
     words: int = struct.field(pytree_node=False, default=language.MAX_LEN)
 
     # -- pieces -------------------------------------------------------------------------
+    @property
+    def envs(self) -> BatchedAutoReset:
+        """The env batch training steps: auto-reset only where an episode ended."""
+        return BatchedAutoReset(self.env)
+
     def lang_table(self, params) -> jax.Array:
         """(K, lang_dim): the policy's sentence features of every row of the table."""
         tokens = self.table[:, : self.words] if self.has_language else None
@@ -101,7 +106,7 @@ class Learner(struct.PyTreeNode):
     def init(self, key: jax.Array) -> RunnerState:
         c, env = self.config, self.env
         key, net_key, env_key = jax.random.split(key, 3)
-        states, ts = env.reset(jax.random.split(env_key, c.num_envs))
+        states, ts = self.envs.reset(jax.random.split(env_key, c.num_envs))
         obs = ts.observation
         params = self.network.init(
             net_key, obs["image"][:1], obs["direction"][:1], self.table[:1],
@@ -135,7 +140,7 @@ class Learner(struct.PyTreeNode):
         Returns ``(env carry, Transition (T, E), statistics (T,))``.
         """
         step = functools.partial(
-            rollout.env_step, config=self.config, env=self.env,
+            rollout.env_step, config=self.config, env=self.envs,
             policy=self.policy(runner.params, lang_table), table=self.table, words=self.words,
             checker=self.checker, penalty=self.penalty_at(runner.update),
             novelty=self.novelty_at(runner.update),
@@ -240,7 +245,7 @@ class Learner(struct.PyTreeNode):
     def evaluate(self, params, key, num_episodes: int, env=None):
         """Per-episode results of :func:`agents.evaluation.play_episodes` (fixed ``key`` =
         fixed episodes) on the raw env (or ``env``)."""
-        env = self.env.env if env is None else env
+        env = self.env if env is None else env
         return play_episodes(env, lambda o, k: self.act(params, o, k), key, num_episodes)
 
     def chunk(self, runner: RunnerState):
@@ -272,7 +277,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
     )
     return Learner(
         config=config,
-        env=BatchedAutoReset(env),
+        env=env,
         network=ActorCritic(num_actions=env.num_actions, conv_channels=config.conv_channels),
         optimizer=optimizer,
         checker=checker,
