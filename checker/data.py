@@ -638,8 +638,8 @@ def with_colour_counterfactuals(
     sentence, says 0 (within a lookahead of 0 or 1 steps the agent enters at most one door).
     Rollout data rarely holds such windows otherwise (the behaviour agent seldom walks
     through a permitted door while its window looks like a forbidden one), and without them
-    a checker was measured to ignore the sentence: colour-counterfactual AUROC 0.53 on
-    TwoRooms, alarms in front of every door, and PPO agents that stopped using doors.
+    a checker can learn to ignore the sentence and alarm in front of every door (the
+    measurement is in ``docs/decisions.md``).
 
     The new colour is drawn among the (template, colour) combinations of the dataset's
     language split (``meta["split"]``), so the held-out combinations stay unseen. Rows are
