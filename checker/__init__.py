@@ -1,4 +1,4 @@
-"""Constraint checker (DESIGN.md §6): does the agent's recent trajectory, read with the
+"""Constraint checker: does the agent's recent trajectory, read with the
 constraint's sentence, mean a violation is about to happen?
 
 * :mod:`checker.model`: the Flax network (:class:`Checker`, :class:`CheckerConfig`);
@@ -8,7 +8,9 @@ constraint's sentence, mean a violation is about to happen?
   :func:`violation_prob`, what the PPO step calls every env step;
 * :mod:`checker.data`: auto-labelled datasets collected on device (:func:`collect`);
 * :mod:`checker.policies`: behaviour policies for collection;
-* :mod:`checker.train`: :func:`train_checker` and the ``python -m checker.train`` CLI;
+* :mod:`checker.train`: :class:`CheckerTrainConfig` and :func:`train_checker`, the one way
+  a checker is trained (``python -m checker`` collects noisy-oracle windows and runs it);
+* :mod:`checker.cli`: the command lines, generated from the configs' dataclasses;
 * :mod:`checker.metrics`: classification metrics, lead time, :func:`evaluate`;
 * :mod:`checker.bench`: the checker's cost per env step (``python -m checker.bench``).
 
@@ -35,6 +37,7 @@ from checker.metrics import (
 from checker.model import Checker, CheckerConfig
 from checker.policies import NoisyOracleParams, noisy_oracle_policy, random_policy
 from checker.reward import init_buffer, push, violation_prob
+from checker.train import CheckerTrainConfig, train_checker
 from checker.trained import TrainedChecker, load, save
 
 __all__ = [
@@ -49,6 +52,7 @@ __all__ = [
     "predict",
     "train_checker",
     "CheckerConfig",
+    "CheckerTrainConfig",
     "CheckerDataset",
     "NoisyOracleParams",
     "TrainedChecker",
@@ -65,12 +69,3 @@ __all__ = [
     "with_distractors",
 ]
 
-
-def __getattr__(name):
-    # Lazy, so that ``python -m checker.train`` does not find checker.train already imported
-    # (runpy's RuntimeWarning) when the package is loaded first.
-    if name == "train_checker":
-        from checker.train import train_checker
-
-        return train_checker
-    raise AttributeError(f"module 'checker' has no attribute {name!r}")

@@ -9,7 +9,7 @@ does not depend on their values) unless ``--checker DIR`` is given.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import functools
 import json
 import time
@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from checker import cli
 from checker.model import CheckerConfig
 from checker.reward import init_buffer, push, violation_prob
 from checker.trained import load, new_checker
@@ -71,22 +72,32 @@ def measure(env, trained, num_envs: int, steps: int, repeats: int = 3) -> dict:
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class BenchConfig:
+    """The checker's cost per env step, with and without it, for each number of envs."""
+
+    env: str = "TwoRooms-v0"  # the environment id
+    envs: tuple[int, ...] = (256, 1024, 4096)  # numbers of parallel envs, one timing each
+    steps: int = 64  # steps per timed scan
+    repeats: int = 3  # timed calls; the best is reported
+    checker: str | None = None  # a trained checker's directory; None: fresh parameters
+
+    def __post_init__(self):
+        import jaxgrid
+
+        if self.env not in jaxgrid.registered_ids():
+            raise ValueError(f"BenchConfig.env: unknown environment id {self.env!r}")
+        if not self.envs or min(self.envs) < 1:
+            raise ValueError(f"BenchConfig.envs: every count must be >= 1, got {self.envs}")
+        for name in ("steps", "repeats"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"BenchConfig.{name} must be >= 1, got {getattr(self, name)}")
+
+
 def main(argv=None) -> list[dict]:
     import jaxgrid
 
-    p = argparse.ArgumentParser(prog="python -m checker.bench", description=__doc__)
-    p.add_argument("--env", default="TwoRooms-v0")
-    p.add_argument("--envs", type=int, nargs="+", default=[256, 1024, 4096])
-    p.add_argument("--steps", type=int, default=64)
-    p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--checker", default=None, help="a checker directory (default: fresh)")
-    args = p.parse_args(argv)
-    if min(args.envs) < 1:
-        p.error("--envs: every count must be >= 1")
-    if args.steps < 1:
-        p.error("--steps: must be >= 1")
-    if args.repeats < 1:
-        p.error("--repeats: must be >= 1")
+    args = cli.parse(BenchConfig, argv, prog="python -m checker.bench", description=__doc__)
     env = jaxgrid.make(args.env)
     trained = (
         load(args.checker)
