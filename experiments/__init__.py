@@ -1,1 +1,1 @@
-"""experiments package (see ../shared/DESIGN.md §1)."""
+"""The paper-reproduction experiments (``python -m experiments.<name>``)."""

@@ -20,11 +20,20 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.phases import write_json
-from experiments.pipeline import ExperimentConfig, default_out, parse_args, run_experiment
+from checker.train import CheckerTrainConfig
+from experiments.pipeline import (
+    ExperimentConfig,
+    default_out,
+    parse_args,
+    run_experiment,
+    scenario,
+)
 from experiments.report import mean_ci
+from jaxgrid.io import write_json
 
-DEFAULTS = ExperimentConfig(experiment="label_timing", env_id="TwoRooms-v0", modes=("checker",))
+SCENARIO = dataclasses.replace(scenario("label_timing", "TwoRooms-v0"), modes=("checker",))
+# The ablation sets these itself.
+HIDDEN = {ExperimentConfig: {"modes": None}, CheckerTrainConfig: {"lookahead": None}}
 LABELS = {1: "just before (lookahead 1)", 0: "after (lookahead 0)"}
 
 
@@ -41,12 +50,13 @@ def _row(name: str, res: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    cfg = parse_args(sys.argv[1:] if argv is None else argv, DEFAULTS)
+    cfg = parse_args(sys.argv[1:] if argv is None else argv, SCENARIO, hide=HIDDEN)
     out = Path(cfg.out or default_out(cfg.experiment))
     results = {}
     for k, name in LABELS.items():
-        sub = dataclasses.replace(cfg, experiment=f"label_timing_lookahead{k}", lookahead=k,
-                                  modes=("checker",), out=str(out / f"lookahead{k}"))  # fmt: skip
+        labels = dataclasses.replace(cfg.checker_train, lookahead=k)
+        sub = dataclasses.replace(cfg, experiment=f"label_timing_lookahead{k}", modes=("checker",),
+                                  checker_train=labels, out=str(out / f"lookahead{k}"))  # fmt: skip
         print(f"== checker trained with labels {name}")
         results[k] = run_experiment(sub)
     table = [

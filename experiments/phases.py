@@ -8,7 +8,6 @@ loads it instead of recomputing it.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from pathlib import Path
 
@@ -18,39 +17,26 @@ import numpy as np
 import checker as chk
 import jaxgrid
 from agents.config import PPOConfig
-from agents.train import make_learner
 from agents.runner import run as run_ppo
+from agents.train import make_learner
+from jaxgrid.io import read_json, to_jsonable, write_json, write_jsonl
 
 # Checker metrics copied into results.json (all rates).
 CHECKER_KEYS = ("accuracy", "precision", "recall", "f1", "auroc", "ece")
 HELDOUT_FRACTION = 4  # held-out / transfer sets are checker_samples // 4 windows
 
 
-def _json(path: Path, obj=None):
-    """Read ``path`` (``obj`` None) or write ``obj`` there atomically."""
-    if obj is None:
-        return json.loads(path.read_text())
-    return write_json(path, obj)
-
-
-def write_json(path: Path, obj):
-    """Atomic JSON write (a reader never sees half a file); numpy values become lists."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, default=_plain) + "\n")
-    os.replace(tmp, path)
-    return obj
-
-
-def _plain(x):
-    if isinstance(x, np.generic | np.ndarray | jax.Array):
-        return np.asarray(x).tolist()
-    raise TypeError(f"not JSON-serialisable: {type(x).__name__}")
-
-
 def _config_dict(cfg) -> dict:
-    d = dataclasses.asdict(cfg)
-    d["modes"] = list(cfg.modes)
-    return d
+    """``cfg`` as the JSON of ``config.json`` (nested configs as objects, tuples as lists)."""
+    return to_jsonable(dataclasses.asdict(cfg))
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    """``{"ppo": {"lr": x}}`` -> ``{"ppo.lr": x}``."""
+    out = {}
+    for k, v in d.items():
+        out.update(_flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+    return out
 
 
 # ----------------------------------------------------------------------------------------
@@ -68,42 +54,42 @@ def prepare_out(cfg) -> Path:
         probe.unlink()
     except OSError as e:
         raise ValueError(f"--out {cfg.out}: not writable ({e.strerror or e})") from None
-    mine = {k: v for k, v in _config_dict(cfg).items() if k not in ("progress", "out")}
+    mine = {k: v for k, v in _flat(_config_dict(cfg)).items() if k not in ("progress", "out")}
     path = out / "config.json"
     if path.exists():
-        theirs = {k: v for k, v in _json(path).items() if k not in ("progress", "out")}
+        theirs = {k: v for k, v in _flat(read_json(path)).items()
+                  if k not in ("progress", "out")}  # fmt: skip
         diff = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
         if diff:
             raise ValueError(
                 f"--out {cfg.out} holds a run with another configuration (differs in "
                 f"{', '.join(diff)}); pick a new --out or the same flags to resume it"
             )
-    _json(path, _config_dict(cfg))
+    write_json(path, _config_dict(cfg))
     return out
 
 
-def ppo_config(cfg, mode: str, *, env_id: str | None = None, steps: int | None = None):
-    """The :class:`PPOConfig` of one mode (also validates the sizes, before any compile)."""
-    steps = cfg.steps if steps is None else steps
-    batch = cfg.num_envs * cfg.num_steps
-    updates = max(1, steps // batch)
-    try:
-        return PPOConfig(
-            env_id=env_id or cfg.env_id, reward_mode=mode, total_timesteps=max(steps, batch),
-            num_envs=cfg.num_envs, num_steps=cfg.num_steps,
-            num_minibatches=cfg.num_minibatches, update_epochs=cfg.update_epochs, lr=cfg.lr,
-            penalty=cfg.penalty, penalty_start=cfg.penalty_start,
-            penalty_warmup=cfg.penalty_warmup,
-            # The bonus is for the experiment's own agents, not a behaviour agent elsewhere.
-            novelty_bonus=cfg.novelty_bonus if env_id in (None, cfg.env_id) else 0.0,
-            # The behaviour agent (``env_id`` given) keeps PPO's default entropy bonus, so that
-            # the checker's data does not depend on it.
-            **({"ent_coef": cfg.ent_coef} if env_id is None else {}),
-            eval_every=max(1, updates // cfg.curve_points),
-            eval_episodes=cfg.eval_episodes, seed=cfg.seed,
-        )  # fmt: skip
-    except ValueError as e:
-        raise ValueError(f"PPO settings of mode {mode!r}: {e}") from None
+def ppo_config(cfg, mode: str) -> PPOConfig:
+    """The compared agents' :class:`PPOConfig` in reward mode ``mode``."""
+    return _evaluated(cfg, dataclasses.replace(cfg.ppo, reward_mode=mode))
+
+
+def behaviour_config(cfg) -> PPOConfig:
+    """The behaviour agent's: ``none`` mode on the checker's scenario for ``behaviour_steps``,
+    with PPO's default entropy bonus (so that the checker's data does not depend on the
+    compared agents' one) and the novelty bonus only on the experiment's own scenario."""
+    ppo = cfg.ppo
+    return _evaluated(cfg, dataclasses.replace(
+        ppo, env_id=cfg.checker_env_id, reward_mode="none", ent_coef=PPOConfig.ent_coef,
+        total_timesteps=max(cfg.behaviour_steps, ppo.batch_size),
+        novelty_bonus=ppo.novelty_bonus if cfg.checker_env_id == ppo.env_id else 0.0,
+    ))  # fmt: skip
+
+
+def _evaluated(cfg, ppo: PPOConfig) -> PPOConfig:
+    """``ppo`` evaluated ``curve_points`` times: every ``max(1, updates // curve_points)``."""
+    updates = ppo.total_timesteps // ppo.batch_size
+    return dataclasses.replace(ppo, eval_every=max(1, updates // cfg.curve_points))
 
 
 # ----------------------------------------------------------------------------------------
@@ -122,7 +108,7 @@ class AgentPolicy:
 
 def behaviour_agent(cfg, out: Path):
     """PPO in ``none`` mode on the checker's scenario for ``behaviour_steps`` (resumable)."""
-    config = ppo_config(cfg, "none", env_id=cfg.checker_env_id, steps=cfg.behaviour_steps)
+    config = behaviour_config(cfg)
     result = run_ppo(config, seeds=(cfg.seed,), out_dir=out / "behaviour",
                      progress=cfg.progress, desc="a. behaviour agent")  # fmt: skip
     params = jax.tree.map(lambda x: x[0], result["params"])
@@ -142,8 +128,9 @@ def _collect(cfg, env_id: str, behaviour, key, samples: int, split: str = "train
         policy, params = chk.noisy_oracle_policy, chk.NoisyOracleParams(salt=cfg.seed)
     else:
         policy, params = behaviour
+    settings = cfg.checker_train
     return chk.collect(jaxgrid.make(env_id, split=split), policy, params, key, samples,
-                       cfg.window, cfg.lookahead, env_id=env_id)  # fmt: skip
+                       settings.window, settings.lookahead, env_id=env_id)  # fmt: skip
 
 
 def _small_samples(cfg) -> int:
@@ -173,25 +160,20 @@ def _rates(metrics: dict) -> dict:
 
 
 def train_checker(cfg, out: Path, data, behaviour):
-    """Train the checker, then measure it on test, held-out language and transfer sets."""
+    """Train the checker as ``python -m checker`` does (:func:`checker.train_checker`, which
+    splits off the test set), then measure it on test, held-out language and transfer sets."""
     ckpt, report_path = out / "checker", out / "checker.json"
     if (ckpt / "config.json").exists() and report_path.exists():
-        return chk.load(ckpt), _json(report_path)
-    trainval, test = data.split((0.85, 0.15), seed=cfg.seed)
-    trained, history = chk.train_checker(
-        trainval, chk.CheckerConfig(window=cfg.window, view_size=data.windows.shape[2]),
-        seed=cfg.seed, epochs=cfg.checker_epochs, val_fraction=0.15 / 0.85,
-        progress=cfg.progress,
-    )  # fmt: skip
-    trained = dataclasses.replace(trained, env_id=cfg.checker_env_id)
+        return chk.load(ckpt), read_json(report_path)
+    trained, history, test = chk.train_checker(data, cfg.checker_train, progress=cfg.progress)
     chk.save(trained, ckpt)
     key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 2)
     held = _collect(cfg, cfg.checker_env_id, behaviour, key, _small_samples(cfg), "heldout")
     details = {"test": chk.evaluate(trained, test), "heldout": chk.evaluate(trained, held)}
     report = _checker_report(details, history)
     report["transfer"] = _transfer(cfg, trained, report)
-    _json(report_path, report)
-    _json(ckpt / "report.json", report)  # travels with the checker for --checker reuse
+    write_json(report_path, report)
+    write_json(ckpt / "report.json", report)  # travels with the checker for --checker reuse
     print(f"c. checker: test AUROC {report['test']['auroc']:.3f} F1 {report['test']['f1']:.3f}"
           f", held-out AUROC {report['heldout']['auroc']:.3f}")  # fmt: skip
     return trained, report
@@ -221,16 +203,17 @@ def _transfer(cfg, trained, report: dict) -> dict | None:
 
 def reuse_checker(cfg):
     """``--checker DIR``: load it and its report (``report.json`` of a pipeline run, or
-    ``metrics.json`` of ``python -m checker.train``)."""
+    ``metrics.json`` of ``python -m checker``)."""
     path = Path(cfg.checker)
     trained = chk.load(path)
-    if trained.config.window != cfg.window:
+    window = cfg.checker_train.window
+    if trained.config.window != window:
         raise ValueError(f"--checker {path}: window {trained.config.window} != --window "
-                         f"{cfg.window}")  # fmt: skip
+                         f"{window}")  # fmt: skip
     if (path / "report.json").exists():
-        report = _json(path / "report.json")
+        report = read_json(path / "report.json")
     elif (path / "metrics.json").exists():
-        m = _json(path / "metrics.json")["metrics"]
+        m = read_json(path / "metrics.json")["metrics"]
         details = {"test": m["test"]}
         if m.get("heldout_language"):
             details["heldout"] = m["heldout_language"]
@@ -240,7 +223,7 @@ def reuse_checker(cfg):
         raise ValueError(f"--checker {path}: neither report.json nor metrics.json found, so "
                          "its test metrics are unknown")  # fmt: skip
     report = dict(report, transfer=_transfer(cfg, trained, dict(report)))
-    _json(Path(cfg.out) / "checker.json", dict(report, reused_from=str(path)))
+    write_json(Path(cfg.out) / "checker.json", dict(report, reused_from=str(path)))
     return trained, report
 
 
@@ -328,15 +311,14 @@ def write_outputs(cfg, out: Path, results: dict, runs: dict) -> list[Path]:
     paths = list(write_report(results, out))
     title = f"{cfg.experiment} ({cfg.env_id}, {cfg.seeds} seeds)"
     paths.append(plot_curves(curves_from_results(results), out / "curves.png", title))
-    lines = [json.dumps({"mode": mode, **rec}) for mode, r in runs.items()
-             for rec in r["records"]]  # fmt: skip
-    (out / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    write_jsonl(out / "metrics.jsonl", ({"mode": mode, **rec} for mode, r in runs.items()
+                                        for rec in r["records"]))  # fmt: skip
     paths += [out / "metrics.jsonl", out / "config.json", out / "checker.json"]
     if (out / "episodes.gif").exists():
         paths.append(out / "episodes.gif")
     return [p for p in paths if Path(p).exists()]
 
 
-__all__: list[str] = ["prepare_out", "write_json", "ppo_config", "behaviour_agent", "checker_data",
-                      "train_checker", "reuse_checker", "train_agents", "write_gif",
-                      "assemble", "write_outputs"]  # fmt: skip
+__all__: list[str] = ["prepare_out", "ppo_config", "behaviour_config",
+                      "behaviour_agent", "checker_data", "train_checker", "reuse_checker",
+                      "train_agents", "write_gif", "assemble", "write_outputs"]  # fmt: skip

@@ -8,16 +8,21 @@ a. **behaviour** agent: PPO in ``none`` mode for ``behaviour_steps`` on the chec
    scenario (the paper's "partially trained agent"), ``DIR/behaviour/``;
 b. **data**: windows of its rollouts with random constraints, labelled by the ground-truth
    monitor ``lookahead`` steps ahead (1 = just before), ``DIR/checker_data.{npz,json}``;
-c. **checker**: trained and measured (test split, held-out language split, and for a checker
-   of another scenario, transfer), ``DIR/checker/`` and ``DIR/checker.json``;
+c. **checker**: trained by :func:`checker.train_checker` and measured (test split, held-out
+   language split, and for a checker of another scenario, transfer), ``DIR/checker/`` and
+   ``DIR/checker.json``;
 d. **PPO** in every reward mode over ``seeds`` seeds at once (vmapped), evaluated on fixed
    seeds every ``eval_every`` updates, checkpointed, ``DIR/modes/<mode>/``;
 e. **final evaluation** over ``final_episodes`` fixed-seed episodes per seed;
 f. **report**: ``results.json``, ``results.md``, ``curves.png``, ``episodes.gif``,
    ``metrics.jsonl`` and ``config.json``.
 
-Sizes come in three presets: ``--quick`` (smoke test, minutes), the default (meaningful
-results in at most about 30 minutes on a 2-core CPU) and ``--paper`` (1e7 steps, 5 seeds).
+An :class:`ExperimentConfig` holds the experiment's own sizes, the compared agents'
+:class:`~agents.config.PPOConfig` and the checker's :class:`~checker.train.CheckerTrainConfig`;
+each validates its own fields. Sizes come in three presets, overrides of :data:`BASE`:
+``--quick`` (smoke test, minutes), the default (meaningful results in at most about 30
+minutes on a 2-core CPU) and ``--paper`` (1e7 steps, 5 seeds). The command line is generated
+from the three dataclasses (:mod:`checker.cli`); ``--help`` lists every flag and its default.
 """
 
 from __future__ import annotations
@@ -29,119 +34,116 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import Annotated
 
+from tyro.constructors import PrimitiveConstructorSpec
+
+from agents.config import REWARD_MODES, PPOConfig
+from checker import cli
+from checker.train import CheckerTrainConfig
 from experiments import phases
 
-MODES = ("checker", "shaped", "none", "lagrangian")
+
+def _modes(args: list[str]) -> tuple[str, ...]:
+    return tuple(m.strip() for m in args[0].split(",") if m.strip())
+
+
+# ``--modes checker,none``
+Modes = Annotated[tuple[str, ...], PrimitiveConstructorSpec(
+    nargs=1, metavar="MODE[,MODE...]", instance_from_str=_modes,
+    is_instance=lambda x: isinstance(x, tuple), str_from_instance=lambda m: [",".join(m)],
+)]  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
 class ExperimentConfig:
-    """One experiment. ``None`` sizes take the preset's value (see :data:`PRESETS`)."""
+    """One experiment; every part is validated on construction (``ValueError``)."""
 
-    experiment: str = "two_rooms"
-    env_id: str = "TwoRooms-v0"
-    checker_env_id: str | None = None  # scenario the checker is trained on (default env_id)
-    out: str | None = None
-    checker: str | None = None  # reuse a trained checker directory (skips phases a-c)
-    modes: tuple[str, ...] = MODES
-    seeds: int | None = None
-    steps: int | None = None
-    behaviour_steps: int | None = None
-    checker_samples: int | None = None
-    checker_epochs: int | None = None
-    window: int = 5
-    lookahead: int = 1
-    num_envs: int | None = None
-    num_steps: int = 64
-    num_minibatches: int = 4
-    update_epochs: int = 4
-    lr: float = 1e-3  # PPO's Adam step size (see PPOConfig.lr)
-    penalty: float = 1.0
-    penalty_start: float | None = None  # no penalty for this fraction of training (preset 0.2)
-    penalty_warmup: float = 0.1  # then a linear ramp over this fraction
-    novelty_bonus: float | None = None  # exploration bonus (PPOConfig.novelty_bonus)
-    ent_coef: float | None = None  # PPO's entropy bonus of the compared agents (preset 0.01)
-    curve_points: int | None = None
-    eval_episodes: int | None = None
-    final_episodes: int | None = None
-    gif_episodes: int = 4
-    seed: int = 0
-    quick: bool = False
-    paper: bool = False
-    progress: bool = True
+    experiment: str = "two_rooms"  # names the outputs and selects PRESET_CHANGES (no flag)
+    checker_env_id: str | None = None  # the checker's scenario; None: the agents' (no flag)
+    out: str | None = None  # output directory; None: runs/<experiment>/<date-time>
+    checker: str | None = None  # a trained checker's directory, reused (skips phases a-c)
+    modes: Modes = REWARD_MODES  # the reward modes compared
+    seeds: int = 3  # agents per mode, trained at once: seeds --seed, --seed + 1, ...
+    behaviour_steps: int = 300_000  # env steps of the behaviour agent (phase a)
+    checker_samples: int = 12_000  # windows of checker data (phase b)
+    curve_points: int = 15  # evaluations: every max(1, updates // curve_points) updates
+    final_episodes: int = 500  # final evaluation episodes per agent
+    gif_episodes: int = 4  # episodes recorded in episodes.gif (0: none)
+    quick: bool = False  # the smoke-test preset: every output in minutes, results mean nothing
+    paper: bool = False  # the paper's preset: 1e7 steps, 5 seeds
+    progress: bool = True  # show progress bars
+    # The compared agents' PPO (--steps: total_timesteps). Each run sets reward_mode and
+    # eval_every (from curve_points); the behaviour agent runs on checker_env_id for
+    # behaviour_steps with PPO's default entropy bonus, the novelty bonus only on env_id.
+    ppo: PPOConfig = PPOConfig(num_envs=128, num_steps=64, num_minibatches=4,
+                               total_timesteps=1_500_000, eval_every=1)  # fmt: skip
+    # The checker's training (--checker-*): from --seed, and measured at the threshold at
+    # which the agents' checker alarms (--checker-threshold).
+    checker_train: CheckerTrainConfig = CheckerTrainConfig(epochs=40)
 
-    def resolved(self) -> ExperimentConfig:
-        """Fill ``None`` sizes from the preset and validate everything (``ValueError``)."""
+    def __post_init__(self):
+        if self.checker_env_id is None:
+            object.__setattr__(self, "checker_env_id", self.ppo.env_id)
+        synced = dataclasses.replace(self.checker_train, seed=self.ppo.seed,
+                                     threshold=self.ppo.checker_threshold)  # fmt: skip
+        object.__setattr__(self, "checker_train", synced)
+        me = type(self).__name__
         if self.quick and self.paper:
-            raise ValueError("--quick and --paper exclude each other")
-        name = "quick" if self.quick else "paper" if self.paper else "default"
-        preset = {**PRESETS[name], **PRESET_CHANGES.get(self.experiment, {}).get(name, {})}
-        filled = {k: v for k, v in preset.items() if getattr(self, k) is None}
-        cfg = dataclasses.replace(self, **filled)
-        if cfg.checker_env_id is None:
-            cfg = dataclasses.replace(cfg, checker_env_id=cfg.env_id)
-        cfg.validate()
-        return cfg
-
-    def validate(self) -> None:
-        unknown = [m for m in self.modes if m not in MODES]
-        if unknown or not self.modes:
-            raise ValueError(f"--modes: unknown mode(s) {unknown}; choose from {MODES}")
-        positive = ("seeds", "steps", "behaviour_steps", "checker_samples", "checker_epochs",
-                    "num_envs", "num_steps", "num_minibatches", "update_epochs",
-                    "curve_points", "eval_episodes", "final_episodes")  # fmt: skip
-        for name in positive:
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, "
-                                 f"got {value!r}")  # fmt: skip
-        if self.gif_episodes < 0:
-            raise ValueError(f"--gif-episodes must be >= 0, got {self.gif_episodes}")
-        if not self.lr > 0:
-            raise ValueError(f"--lr must be > 0, got {self.lr}")
-        if self.penalty < 0:
-            raise ValueError(f"--penalty must be >= 0, got {self.penalty}")
-        for name in ("novelty_bonus", "ent_coef"):
-            value = getattr(self, name)
-            if value is not None and not value >= 0:
-                raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
-        for name in ("penalty_start", "penalty_warmup"):
-            if not 0 <= getattr(self, name) <= 1:
-                raise ValueError(f"--{name.replace('_', '-')} must be in [0, 1], got "
-                                 f"{getattr(self, name)}")  # fmt: skip
+            raise ValueError(f"{me}.quick and {me}.paper exclude each other")
+        unknown = [m for m in self.modes if m not in REWARD_MODES]
+        if unknown or not self.modes or len(set(self.modes)) < len(self.modes):
+            raise ValueError(f"{me}.modes: unknown, repeated or no mode(s) in {self.modes}; "
+                             f"choose from {','.join(REWARD_MODES)}")  # fmt: skip
+        positive = ("seeds", "behaviour_steps", "checker_samples", "curve_points",
+                    "final_episodes")  # fmt: skip
+        for name in positive + ("gif_episodes",):
+            value, low = getattr(self, name), int(name in positive)
+            if not isinstance(value, int) or isinstance(value, bool) or value < low:
+                raise ValueError(f"{me}.{name} must be an integer >= {low}, got {value!r}")
+        if not self.checker_train.test_fraction > 0:
+            raise ValueError("CheckerTrainConfig.test_fraction must be > 0 in an experiment: "
+                             "its report holds the checker's test metrics")  # fmt: skip
         import jaxgrid
 
-        for name in ("env_id", "checker_env_id"):
-            if getattr(self, name) not in jaxgrid.registered_ids():
-                raise ValueError(f"{name}: unknown environment id {getattr(self, name)!r}")
+        for name, env_id in (("PPOConfig.env_id", self.env_id),
+                             (f"{me}.checker_env_id", self.checker_env_id)):  # fmt: skip
+            if env_id not in jaxgrid.registered_ids():
+                raise ValueError(f"{name}: unknown environment id {env_id!r}")
         if self.checker is not None and not (Path(self.checker) / "config.json").exists():
-            raise ValueError(f"--checker {self.checker}: no trained checker there "
+            raise ValueError(f"{me}.checker {self.checker}: no trained checker there "
                              "(expected config.json and params.msgpack)")  # fmt: skip
-        from checker.data import validate_window
 
-        validate_window(self.window, self.lookahead)
-        phases.ppo_config(self, "none")  # PPOConfig's own checks, before anything compiles
+    @property
+    def env_id(self) -> str:
+        """The compared agents' scenario."""
+        return self.ppo.env_id
+
+    @property
+    def seed(self) -> int:
+        """The first seed: of the data, the checker and the first agent of every mode."""
+        return self.ppo.seed
 
 
+BASE = ExperimentConfig()  # the default preset, for TwoRooms
+# Presets: overrides of BASE (a dict overrides inside a nested config), then the experiment's
+# own changes in PRESET_CHANGES (first "all", then the preset's).
 PRESETS: dict[str, dict] = {
+    # Meaningful results within about 30 minutes on a 2-core CPU.
+    "default": {},
     # --quick: the outputs and their schema, in minutes; results mean nothing.
-    "quick": dict(seeds=2, steps=16_384, behaviour_steps=8_192, checker_samples=512,
-                  checker_epochs=3, num_envs=32, curve_points=2, eval_episodes=16,
-                  final_episodes=32, novelty_bonus=0.0, penalty_start=0.2, ent_coef=0.01),
-    # Default: meaningful results within about 30 minutes on a 2-core CPU.
-    "default": dict(seeds=3, steps=1_500_000, behaviour_steps=300_000, checker_samples=12_000,
-                    checker_epochs=40, num_envs=128, curve_points=15, eval_episodes=50,
-                    final_episodes=500, novelty_bonus=0.0, penalty_start=0.2, ent_coef=0.01),
+    "quick": dict(quick=True, seeds=2, behaviour_steps=8_192, checker_samples=512,
+                  curve_points=2, final_episodes=32, checker_train=dict(epochs=3),
+                  ppo=dict(total_timesteps=16_384, num_envs=32, eval_episodes=16)),
     # --paper: the paper's budget (1e7 steps), 5 seeds, 50 evaluation episodes a checkpoint.
-    "paper": dict(seeds=5, steps=10_000_000, behaviour_steps=1_000_000, checker_samples=12_000,
-                  checker_epochs=60, num_envs=256, curve_points=40, eval_episodes=50,
-                  final_episodes=500, novelty_bonus=0.0, penalty_start=0.2, ent_coef=0.01),
+    "paper": dict(paper=True, seeds=5, behaviour_steps=1_000_000, curve_points=40,
+                  checker_train=dict(epochs=60),
+                  ppo=dict(total_timesteps=10_000_000, num_envs=256)),
 }  # fmt: skip
-# Per-experiment changes to a preset. TwoRooms-Lava at 1.5M steps: with the penalty from 20%
-# the constrained agents stopped at about 25% success (the unconstrained one needs about
-# 0.8M steps to solve it); at 3M steps two seeds of `shaped` ended at 0-1% violations and
-# 97-99% success. Its behaviour agent also needs longer to meet doors and lava.
+# TwoRooms-Lava at 1.5M steps: with the penalty from 20% the constrained agents stopped at
+# about 25% success (the unconstrained one needs about 0.8M steps to solve it); at 3M steps two
+# seeds of `shaped` ended at 0-1% violations and 97-99% success. Its behaviour agent also needs
+# longer to meet doors and lava.
 # ThreeRooms-Key's reward (key, locked door, second wall, goal within 150 steps) is too sparse
 # for PPO: in 3M steps of `none` not one of 20k training episodes reached the goal. With an
 # episodic novelty bonus of 0.01 (its agents only; annealed to 0) `none` solved it by 1.1M
@@ -157,25 +159,41 @@ PRESETS: dict[str, dict] = {
 # entropy bonus of 0.03 (`shaped` and `checker`, 3 seeds, 3M steps, 50 evaluation episodes)
 # the last evaluations were 0/4/2% and 0/2/0% violations, 96-100% and 82-96% success; a
 # penalty from the start stopped learning (26% success) and a penalty of 2 cut success to 70%.
-_LAVA_ENTROPY = dict(ent_coef=0.03)
-_KEY_BONUS = dict(novelty_bonus=0.01)
 PRESET_CHANGES: dict[str, dict[str, dict]] = {
     "two_rooms_lava": {
-        "quick": _LAVA_ENTROPY,
-        "default": dict(_LAVA_ENTROPY, steps=3_000_000, behaviour_steps=600_000),
-        "paper": _LAVA_ENTROPY,
+        "all": dict(ppo=dict(ent_coef=0.03)),
+        "default": dict(behaviour_steps=600_000, ppo=dict(total_timesteps=3_000_000)),
     },
     "three_rooms_key": {
-        "quick": _KEY_BONUS,
-        "default": dict(_KEY_BONUS, steps=3_000_000, penalty_start=0.4),
-        "paper": _KEY_BONUS,
+        "all": dict(ppo=dict(novelty_bonus=0.01)),
+        "default": dict(ppo=dict(total_timesteps=3_000_000, penalty_start=0.4)),
     },
 }
 
 
+def override(cfg, changes: dict):
+    """``cfg`` with ``changes`` (``dataclasses.replace``); a dict changes a nested config."""
+    nested = {k: override(getattr(cfg, k), v) for k, v in changes.items() if isinstance(v, dict)}
+    return dataclasses.replace(cfg, **{**changes, **nested})
+
+
+def scenario(experiment: str, env_id: str, checker_env_id: str | None = None):
+    """:data:`BASE` for ``experiment`` on ``env_id`` (its checker's on ``checker_env_id``),
+    before any preset: :func:`preset` makes the configurations that run."""
+    return override(BASE, dict(experiment=experiment, checker_env_id=checker_env_id,
+                               ppo=dict(env_id=env_id)))  # fmt: skip
+
+
+def preset(cfg: ExperimentConfig, name: str = "default") -> ExperimentConfig:
+    """``cfg`` (a :func:`scenario`) with preset ``name`` and its experiment's changes."""
+    own = PRESET_CHANGES.get(cfg.experiment, {})
+    for changes in (PRESETS[name], own.get("all", {}), own.get(name, {})):
+        cfg = override(cfg, changes)
+    return cfg
+
+
 def run_experiment(cfg: ExperimentConfig) -> dict:
     """Run (or resume) every phase of ``cfg`` and write the outputs; returns ``results``."""
-    cfg = cfg.resolved()
     out = phases.prepare_out(cfg)  # fails here, before any training, if not writable
     start = time.perf_counter()
     if cfg.checker is not None:
@@ -198,55 +216,36 @@ def run_experiment(cfg: ExperimentConfig) -> dict:
 # ----------------------------------------------------------------------------------------
 # Command line
 # ----------------------------------------------------------------------------------------
-def parse_args(argv, defaults: ExperimentConfig) -> ExperimentConfig:
-    """argparse over the dataclass fields: ``--seeds 3 --steps 1e6 --modes checker,none``."""
-    parser = argparse.ArgumentParser(
-        prog=f"python -m experiments.{defaults.experiment}",
-        description=f"{defaults.experiment}: the paper's experiment on {defaults.env_id} "
-        "(behaviour agent, checker data, checker, PPO in every reward mode, report).",
-    )
-    hidden = {"experiment", "env_id", "checker_env_id"}
-    for f in dataclasses.fields(ExperimentConfig):
-        if f.name in hidden:
-            continue
-        flag = "--" + f.name.replace("_", "-")
-        default = getattr(defaults, f.name)
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=default)
-        elif f.name == "modes":
-            parser.add_argument(flag, type=_modes, default=default,
-                                help=f"comma-separated subset of {','.join(MODES)}")  # fmt: skip
-        else:
-            kind = str(f.type)
-            typ = float if "float" in kind else int if "int" in kind else str
-            parser.add_argument(flag, type=_number(typ), default=default)
-    ns = parser.parse_args(argv)
-    cfg = dataclasses.replace(defaults, **vars(ns))
-    try:
-        return cfg.resolved()
-    except ValueError as e:
-        parser.error(str(e))  # usage + exit status 2
+# Flags of the nested configs: PPO's are their own names, the checker's training ones
+# --checker-<name>; None: set by the pipeline, no flag.
+FLAGS: cli.Names = {
+    ExperimentConfig: {"experiment": None, "checker_env_id": None},
+    PPOConfig: {"total_timesteps": "steps", "env_id": None, "env_kwargs": None,
+                "reward_mode": None, "eval_every": None},
+    CheckerTrainConfig: {**{f.name: f"checker_{f.name}"
+                            for f in dataclasses.fields(CheckerTrainConfig)},
+                         "window": "window", "lookahead": "lookahead", "seed": None,
+                         "threshold": None},
+}  # fmt: skip
 
 
-def _number(typ):
-    def convert(text: str):
-        if typ is int:
-            value = float(text)  # accepts 1e6
-            if value != int(value):
-                raise argparse.ArgumentTypeError(f"{text!r} is not an integer")
-            return int(value)
-        return typ(text)
-
-    convert.__name__ = typ.__name__
-    return convert
-
-
-def _modes(text: str) -> tuple[str, ...]:
-    modes = tuple(m.strip() for m in text.split(",") if m.strip())
-    bad = [m for m in modes if m not in MODES]
-    if bad or not modes:
-        raise argparse.ArgumentTypeError(f"unknown mode(s) {bad}; choose from {MODES}")
-    return modes
+def parse_args(argv, scenario_cfg: ExperimentConfig, hide: cli.Names | None = None):
+    """The configuration of ``argv``: the preset ``--quick``/``--paper`` names (default: the
+    default) of ``scenario_cfg``, then every flag given. ``hide`` removes more flags."""
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    for name in ("quick", "paper"):
+        pre.add_argument(f"--{name}", action=argparse.BooleanOptionalAction, default=False)
+    chosen, _ = pre.parse_known_args(argv)
+    name = "quick" if chosen.quick and not chosen.paper else "paper" if chosen.paper else ""
+    hide = hide or {}
+    names = {cls: {**FLAGS.get(cls, {}), **hide.get(cls, {})} for cls in FLAGS.keys() | hide}
+    exp = scenario_cfg.experiment
+    return cli.parse(
+        ExperimentConfig, argv, default=preset(scenario_cfg, name or "default"), names=names,
+        prog=f"python -m experiments.{exp}", description=f"{exp}: the paper's experiment on "
+        f"{scenario_cfg.env_id} (behaviour agent, checker data, checker, PPO in every reward "
+        "mode, report). --quick and --paper change the defaults shown here.",
+    )  # fmt: skip
 
 
 def default_out(experiment: str) -> str:
@@ -254,9 +253,9 @@ def default_out(experiment: str) -> str:
     return os.path.join("runs", experiment, stamp)
 
 
-def main(defaults: ExperimentConfig, argv=None) -> dict | None:
+def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
     """Entry point of the scenario modules; Ctrl-C keeps finished phases for a resume."""
-    cfg = parse_args(sys.argv[1:] if argv is None else argv, defaults)
+    cfg = parse_args(sys.argv[1:] if argv is None else argv, scenario_cfg)
     if cfg.quick:  # a smoke test is all compile time: skip LLVM's optimisations (same results)
         flag = "--xla_backend_optimization_level=0"
         if flag not in os.environ.get("XLA_FLAGS", ""):  # read when the CPU backend starts

@@ -2,14 +2,13 @@
 
 Run ``python -m experiments.three_rooms_key [--quick | --paper] [--out DIR]``.
 
-See :mod:`experiments.pipeline` for the phases, the outputs and ``--help`` for the flags.
+See :mod:`experiments.pipeline` for the phases, the outputs and the presets
+(``preset(SCENARIO, name)``), and ``--help`` for the flags.
 """
 
-from experiments.pipeline import ExperimentConfig, main
+from experiments.pipeline import main, scenario
 
-DEFAULTS = ExperimentConfig(
-    experiment="three_rooms_key", env_id="ThreeRoomsKey-v0", checker_env_id="TwoRooms-v0"
-)
+SCENARIO = scenario("three_rooms_key", "ThreeRoomsKey-v0", "TwoRooms-v0")
 
 if __name__ == "__main__":
-    main(DEFAULTS)
+    main(SCENARIO)

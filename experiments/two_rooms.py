@@ -2,14 +2,13 @@
 
 Run ``python -m experiments.two_rooms [--quick | --paper] [--out DIR]``.
 
-See :mod:`experiments.pipeline` for the phases, the outputs and ``--help`` for the flags.
+See :mod:`experiments.pipeline` for the phases, the outputs and the presets
+(``preset(SCENARIO, name)``), and ``--help`` for the flags.
 """
 
-from experiments.pipeline import ExperimentConfig, main
+from experiments.pipeline import main, scenario
 
-DEFAULTS = ExperimentConfig(
-    experiment="two_rooms", env_id="TwoRooms-v0", checker_env_id="TwoRooms-v0"
-)
+SCENARIO = scenario("two_rooms", "TwoRooms-v0")
 
 if __name__ == "__main__":
-    main(DEFAULTS)
+    main(SCENARIO)

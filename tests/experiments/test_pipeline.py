@@ -1,0 +1,299 @@
+"""The paper-reproduction pipeline: its configuration (presets as overrides of one base, the
+published sizes, one command line generated from the configs), bad input rejected before any
+compile, a ``--quick`` TwoRooms run end to end, and (slow) resume and checker reuse."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+
+import jax
+import pytest
+from helpers.cli_help import help_entries, squeezed
+from helpers.experiment_runs import check_outputs, quick
+
+from agents.config import REWARD_MODES, PPOConfig
+from checker.train import CheckerTrainConfig
+from experiments import label_timing, phases, pipeline, three_rooms_key, two_rooms, two_rooms_lava
+from experiments.pipeline import BASE, PRESET_CHANGES, PRESETS, ExperimentConfig, preset
+
+SCENARIOS = {"two_rooms": two_rooms, "two_rooms_lava": two_rooms_lava,
+             "three_rooms_key": three_rooms_key}  # fmt: skip
+
+
+def _flat(cfg) -> dict:
+    def walk(d, prefix=""):
+        for k, v in d.items():
+            yield from walk(v, f"{prefix}{k}.") if isinstance(v, dict) else [(prefix + k, v)]
+
+    return dict(walk(dataclasses.asdict(cfg)))
+
+
+# ------------------------------------------------------------------------- configuration
+def test_experiment_config_declares_no_ppo_or_checker_setting_again():
+    mine = {f.name for f in dataclasses.fields(ExperimentConfig)}
+    for other in (PPOConfig, CheckerTrainConfig):
+        assert not mine & {f.name for f in dataclasses.fields(other)}, other
+
+
+@pytest.mark.parametrize("name", list(PRESETS))
+@pytest.mark.parametrize("experiment", list(SCENARIOS))
+def test_preset_is_the_base_plus_its_overrides(experiment, name):
+    """A preset differs from its scenario's base exactly where its overrides say, to the
+    overrides' values (the experiment's own changes last)."""
+    scenario = SCENARIOS[experiment].SCENARIO
+    expected = {}
+    own = PRESET_CHANGES.get(experiment, {})
+    for changes in (PRESETS[name], own.get("all", {}), own.get(name, {})):
+        expected.update(_flat_changes(changes))
+    got, base = _flat(preset(scenario, name)), _flat(scenario)
+    assert {k for k in got if got[k] != base[k]} == {k for k in expected if expected[k] != base[k]}
+    assert {k: got[k] for k in expected} == expected
+    assert _flat(scenario) == {**_flat(BASE), "experiment": experiment,
+                               "checker_env_id": scenario.checker_env_id,
+                               "ppo.env_id": scenario.env_id}  # fmt: skip
+
+
+def _flat_changes(changes: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in changes.items():
+        out.update(_flat_changes(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
+    return out
+
+
+# The published configurations: (seeds, steps, behaviour steps, checker samples, checker
+# epochs, envs, curve points, evaluation episodes, final episodes, entropy bonus, novelty
+# bonus, penalty start) of every experiment and preset.
+R, L, K = "two_rooms", "two_rooms_lava", "three_rooms_key"
+PUBLISHED = {
+    (R, "quick"): (2, 16_384, 8_192, 512, 3, 32, 2, 16, 32, 0.01, 0.0, 0.2),
+    (R, "default"): (3, 1_500_000, 300_000, 12_000, 40, 128, 15, 50, 500, 0.01, 0.0, 0.2),
+    (R, "paper"): (5, 10_000_000, 1_000_000, 12_000, 60, 256, 40, 50, 500, 0.01, 0.0, 0.2),
+    (L, "quick"): (2, 16_384, 8_192, 512, 3, 32, 2, 16, 32, 0.03, 0.0, 0.2),
+    (L, "default"): (3, 3_000_000, 600_000, 12_000, 40, 128, 15, 50, 500, 0.03, 0.0, 0.2),
+    (L, "paper"): (5, 10_000_000, 1_000_000, 12_000, 60, 256, 40, 50, 500, 0.03, 0.0, 0.2),
+    (K, "quick"): (2, 16_384, 8_192, 512, 3, 32, 2, 16, 32, 0.01, 0.01, 0.2),
+    (K, "default"): (3, 3_000_000, 300_000, 12_000, 40, 128, 15, 50, 500, 0.01, 0.01, 0.4),
+    (K, "paper"): (5, 10_000_000, 1_000_000, 12_000, 60, 256, 40, 50, 500, 0.01, 0.01, 0.2),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("experiment, name", list(PUBLISHED))
+def test_presets_keep_the_published_configurations(experiment, name):
+    cfg = preset(SCENARIOS[experiment].SCENARIO, name)
+    ppo, chk = cfg.ppo, cfg.checker_train
+    got = (cfg.seeds, ppo.total_timesteps, cfg.behaviour_steps, cfg.checker_samples, chk.epochs,
+           ppo.num_envs, cfg.curve_points, ppo.eval_episodes, cfg.final_episodes, ppo.ent_coef,
+           ppo.novelty_bonus, ppo.penalty_start)  # fmt: skip
+    assert got == PUBLISHED[experiment, name]
+    assert (ppo.num_steps, ppo.num_minibatches, ppo.update_epochs, ppo.lr, ppo.penalty,
+            ppo.penalty_warmup, ppo.seed, cfg.gif_episodes) == (64, 4, 4, 1e-3, 1.0, 0.1, 0, 4)
+    assert (chk.window, chk.lookahead, chk.test_fraction, chk.val_fraction) == (5, 1, 0.15, 0.15)
+    assert cfg.modes == REWARD_MODES and (cfg.quick, cfg.paper) == (name == "quick",
+                                                                     name == "paper")  # fmt: skip
+    updates = ppo.total_timesteps // ppo.batch_size
+    for mode in REWARD_MODES:  # evaluated every max(1, updates // curve_points) updates
+        run = phases.ppo_config(cfg, mode)
+        assert run.eval_every == max(1, updates // cfg.curve_points) and run.reward_mode == mode
+        assert run.num_updates == run.num_chunks * run.eval_every
+
+
+def test_three_rooms_key_bonus_is_for_its_own_agents_only():
+    """ThreeRooms-Key's agents get the novelty bonus; its behaviour agent, on TwoRooms, does
+    not. Flags win over the preset; TwoRooms is off."""
+    key = preset(three_rooms_key.SCENARIO)
+    assert phases.ppo_config(key, "none").novelty_bonus == 0.01
+    behaviour = phases.behaviour_config(key)
+    assert (behaviour.env_id, behaviour.novelty_bonus) == ("TwoRooms-v0", 0.0)
+    mine = pipeline.parse_args(["--penalty-start", "0.1", "--novelty-bonus", "0"],
+                               three_rooms_key.SCENARIO)  # fmt: skip
+    assert (mine.ppo.penalty_start, mine.ppo.novelty_bonus) == (0.1, 0.0)
+    assert phases.behaviour_config(preset(two_rooms.SCENARIO)).novelty_bonus == 0.0
+
+
+def test_two_rooms_lava_entropy_bonus_is_for_its_compared_agents_only():
+    """TwoRooms-Lava's compared agents get ent_coef 0.03; its behaviour agent (whose rollouts
+    become the checker's data) keeps PPO's default, and runs on its own scenario for its own
+    steps."""
+    lava = preset(two_rooms_lava.SCENARIO)
+    for mode in REWARD_MODES:
+        assert phases.ppo_config(lava, mode).ent_coef == 0.03
+    behaviour = phases.behaviour_config(lava)
+    assert behaviour.ent_coef == PPOConfig.ent_coef == 0.01
+    assert (behaviour.env_id, behaviour.total_timesteps) == ("TwoRoomsLava-v0", 600_000)
+    mine = pipeline.parse_args(["--ent-coef", "0"], two_rooms_lava.SCENARIO)
+    assert phases.ppo_config(mine, "checker").ent_coef == 0.0
+
+
+def test_flags_set_every_part_and_keep_todays_names(tmp_path):
+    argv = ["--seeds", "4", "--steps", "1e6", "--modes", "checker,none", "--quick", "--out",
+            str(tmp_path), "--penalty", "2", "--lr", "3e-4", "--ent-coef", "0.05",
+            "--penalty-start", "0.3", "--no-progress", "--checker-epochs", "7", "--window", "4",
+            "--lookahead", "2", "--seed", "5", "--checker-distractors", "0",
+            "--checker-threshold", "0.6"]  # fmt: skip
+    cfg = pipeline.parse_args(argv, two_rooms.SCENARIO)
+    assert (cfg.seeds, cfg.modes, cfg.quick, cfg.out, cfg.progress) == (
+        4, ("checker", "none"), True, str(tmp_path), False)
+    assert (cfg.ppo.total_timesteps, cfg.ppo.penalty, cfg.ppo.lr, cfg.ppo.ent_coef,
+            cfg.ppo.penalty_start, cfg.ppo.seed, cfg.ppo.num_envs) == (
+        1_000_000, 2.0, 3e-4, 0.05, 0.3, 5, 32)  # --quick's envs stay
+    chk = cfg.checker_train
+    assert (chk.epochs, chk.window, chk.lookahead, chk.distractors) == (7, 4, 2, 0.0)
+    # The checker trains from the first seed, measured at the agents' alarm threshold.
+    assert (chk.seed, chk.threshold) == (5, 0.6)
+
+
+def _help(capsys, argv, scenario, **kw) -> str:
+    with pytest.raises(SystemExit) as exc:
+        pipeline.parse_args([*argv, "--help"], scenario, **kw)
+    assert exc.value.code == 0
+    return capsys.readouterr().out
+
+
+def test_every_flag_shows_its_default_and_presets_change_them(capsys):
+    entries = help_entries(_help(capsys, [], two_rooms.SCENARIO))
+    todays = ("out checker modes seeds steps behaviour-steps checker-samples checker-epochs "
+              "window lookahead num-envs num-steps num-minibatches update-epochs lr penalty "
+              "penalty-start penalty-warmup novelty-bonus ent-coef curve-points eval-episodes "
+              "final-episodes gif-episodes seed quick paper progress").split()  # fmt: skip
+    checker_training = [f"checker-{n}" for n in ("batch-size", "lr", "weight-decay", "patience",
+                        "test-fraction", "val-fraction", "counterfactuals", "distractors")]
+    assert {f"--{n}" for n in todays + checker_training} <= set(entries)
+    hidden = ("experiment", "checker-env-id", "env-id", "env-kwargs", "reward-mode",
+              "eval-every", "total-timesteps", "checker-seed", "checker-threshold-")
+    assert not {f"--{n}" for n in hidden} & set(entries)
+    missing = [flag for flag, text in entries.items() if flag != "--help" and
+               "(default:" not in text]  # fmt: skip
+    assert not missing, missing
+    assert "(default: 1500000)" in entries["--steps"]
+    assert "(default:none,shaped,checker,lagrangian)" in squeezed(entries["--modes"])
+    quick_help = help_entries(_help(capsys, ["--quick"], three_rooms_key.SCENARIO))
+    assert "(default: 16384)" in quick_help["--steps"]
+    assert "(default: 0.01)" in quick_help["--novelty-bonus"]
+    timing = help_entries(_help(capsys, [], label_timing.SCENARIO, hide=label_timing.HIDDEN))
+    assert "--lookahead" not in timing and "--modes" not in timing and "--window" in timing
+
+
+@pytest.fixture
+def compiles():
+    """Names of the JAX compile events while the test runs."""
+    events = []
+
+    def listen(name, duration, **kwargs):
+        if name.startswith("/jax/core/compile"):
+            events.append(name)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    yield events
+    jax.monitoring.unregister_event_duration_listener(listen)
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--bogus"], "Unrecognized options: --bogus"),
+        (["--seeds", "0"], "--seeds must be an integer >= 1, got 0"),
+        (["--modes", "checker,magic"], "--modes: unknown"),
+        (["--quick", "--paper"], "--quick and --paper exclude each other"),
+        (["--steps", "1.5"], "'1.5' is not an integer"),
+        (["--steps", "1000"], "--steps (1000) gives 0 updates"),
+        (["--checker", "/nonexistent/checker"], "--checker /nonexistent/checker: no trained"),
+        (["--lookahead", "99"], "--lookahead must be in [0, 4 * window]"),
+        (["--novelty-bonus", "-1"], "--novelty-bonus must be >= 0"),
+        (["--ent-coef", "-0.5"], "--ent-coef must be >= 0"),
+        (["--num-envs", "30"], "--num-envs (30) must be divisible by num_minibatches"),
+        (["--checker-lr", "0"], "--checker-lr must be > 0"),
+        (["--checker-test-fraction", "0"], "--checker-test-fraction must be > 0"),
+        (["--checker-val-fraction", "0.9"], "--checker-test-fraction + --checker-val-fraction"),
+    ],
+)
+def test_bad_flags_are_usage_errors_naming_the_flag_before_any_compile(
+    argv, message, tmp_path, capsys, compiles
+):
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        quick(two_rooms, out, *argv)
+    assert exc.value.code == 2
+    err = " ".join(capsys.readouterr().err.replace("│", " ").split())
+    assert message in err, err
+    assert not out.exists() and not compiles
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root can write anywhere")
+def test_unwritable_out_fails_before_training(tmp_path, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    with pytest.raises(SystemExit) as exc:
+        quick(two_rooms, locked / "run")
+    assert exc.value.code == 2
+    assert "not writable" in capsys.readouterr().err
+
+
+def test_out_that_is_a_file_fails_before_training(tmp_path, capsys):
+    target = tmp_path / "a-file"
+    target.write_text("not a directory")
+    with pytest.raises(SystemExit) as exc:
+        quick(two_rooms, target)
+    assert exc.value.code == 2
+    assert "not writable" in capsys.readouterr().err
+    assert target.read_text() == "not a directory"  # nothing already written is lost
+
+
+def test_out_of_another_configuration_is_refused(tmp_path, capsys):
+    (tmp_path / "config.json").write_text(json.dumps({"experiment": "two_rooms", "seeds": 9,
+                                                      "ppo": {"lr": 0.5}}))  # fmt: skip
+    with pytest.raises(SystemExit) as exc:
+        quick(two_rooms, tmp_path)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "another configuration" in err and "ppo.lr" in err and "seeds" in err
+
+
+# ------------------------------------------------------------------------------ end to end
+@pytest.fixture(scope="module")
+def two_rooms_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("two_rooms")
+    return out, quick(two_rooms, out)
+
+
+def test_two_rooms_quick_outputs(two_rooms_run):
+    out, results = two_rooms_run
+    on_disk = check_outputs(out, "two_rooms")
+    assert on_disk["methods"]["checker"]["final"] == pytest.approx(
+        results["methods"]["checker"]["final"]
+    )
+    assert (out / "checker" / "config.json").is_file()
+    assert (out / "checker_data.npz").is_file()
+    assert on_disk["checker"]["heldout"] is not None
+    config = json.loads((out / "config.json").read_text())
+    assert config["ppo"]["total_timesteps"] == 16_384 and config["checker_train"]["epochs"] == 3
+    checker_report = json.loads((out / "checker.json").read_text())
+    test_rows = checker_report["details"]["test"]["n"]
+    assert test_rows == pytest.approx(0.15 * 512, abs=2)  # the checker config's test split
+
+
+@pytest.mark.slow
+def test_two_rooms_rerun_resumes_from_finished_phases(two_rooms_run):
+    out, first = two_rooms_run
+    stamps = {p: p.stat().st_mtime_ns for p in [out / "checker_data.npz",
+                                                  out / "checker" / "params.msgpack"]}  # fmt: skip
+    ckpts = sorted(p.name for p in (out / "modes" / "checker" / "checkpoints").iterdir())
+    again = quick(two_rooms, out)
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps  # phases a-c not redone
+    assert sorted(p.name for p in (out / "modes" / "checker" / "checkpoints").iterdir()) == ckpts
+    for mode in REWARD_MODES:  # same trained agents, same fixed evaluation seeds
+        assert again["methods"][mode]["final"] == first["methods"][mode]["final"]
+        assert again["methods"][mode]["curve"] == first["methods"][mode]["curve"]
+
+
+@pytest.mark.slow
+def test_three_rooms_key_quick_reuses_two_rooms_checker(two_rooms_run, tmp_path):
+    out, _ = two_rooms_run
+    results = quick(three_rooms_key, tmp_path, "--checker", str(out / "checker"),
+                    "--modes", "checker,none")  # fmt: skip
+    on_disk = check_outputs(tmp_path, "three_rooms_key", modes=("checker", "none"))
+    assert on_disk["checker"]["transfer"] is not None  # TwoRooms checker on ThreeRoomsKey
+    assert results["checker"]["test"] == on_disk["checker"]["test"]
+    assert not (tmp_path / "behaviour").exists()  # the checker was reused, not rebuilt

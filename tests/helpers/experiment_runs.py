@@ -1,0 +1,38 @@
+"""Shared by the experiments' tests: ``--quick`` pipeline runs in this process, and the check
+of their outputs (files, schema, seeds and episodes of the quick preset)."""
+
+from __future__ import annotations
+
+import json
+
+from agents.config import REWARD_MODES
+from experiments import pipeline
+from experiments.report import validate_results
+
+OUTPUTS = ("results.json", "results.md", "curves.png", "checker.json", "episodes.gif",
+           "metrics.jsonl", "config.json")  # fmt: skip
+
+
+def quick(module, out, *extra) -> dict:
+    """``python -m experiments.<module> --quick --no-progress --out OUT ...``, in process."""
+    argv = ["--quick", "--no-progress", "--out", str(out), *extra]
+    return pipeline.main(module.SCENARIO, argv)
+
+
+def check_outputs(out, experiment: str, modes=REWARD_MODES) -> dict:
+    """Every output of a ``--quick`` run in ``out`` exists and follows the schema."""
+    for name in OUTPUTS:
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    results = json.loads((out / "results.json").read_text())
+    validate_results(results)
+    assert results["experiment"] == experiment
+    assert set(results["methods"]) == set(modes)
+    for entry in results["methods"].values():
+        assert entry["seeds"] == 2
+        assert entry["final"]["episodes"] == 2 * 32
+        assert len(entry["curve"]) >= 1
+    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert {r["mode"] for r in records} == set(modes)
+    assert (out / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "episodes.gif").read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+    return results
