@@ -308,3 +308,10 @@ def train_checker(
         threshold=float(s.threshold),
     )
     return trained, history, test
+
+
+if __name__ == "__main__":  # not a command: say which one trains a checker
+    import sys
+
+    print("error: the checker's command line is `python -m checker`", file=sys.stderr)
+    raise SystemExit(2)
