@@ -45,36 +45,37 @@ class PPOConfig:
     ``docs/decisions.md``.
     """
 
-    env_id: str = "TwoRooms-v0"
+    env_id: str = "TwoRooms-v0"  # jaxgrid id of the environment
+    # overrides passed to jaxgrid.make, as (name, value) pairs
     env_kwargs: tuple[tuple[str, Any], ...] = ()
-    num_envs: int = 256
-    num_steps: int = 128
-    total_timesteps: int = 2_000_000
-    update_epochs: int = 4
-    num_minibatches: int = 8
-    lr: float = 1e-3
-    anneal_lr: bool = True
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    clip_eps: float = 0.2
-    ent_coef: float = 0.01
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-    reward_mode: str = "none"
-    penalty: float = 1.0
-    penalty_start: float = 0.2
-    penalty_warmup: float = 0.1
-    checker_threshold: float = 0.5
-    soft_checker: bool = False
-    cost_target: float = 0.05
-    lagrangian_lr: float = 0.05
-    lagrangian_init: float = 0.0
-    novelty_bonus: float = 0.0
-    eval_every: int = 10
-    eval_episodes: int = 50
-    eval_seed: int = 20_200_207
-    seed: int = 0
-    conv_channels: tuple[int, ...] = (16,)
+    num_envs: int = 256  # environments stepped in parallel
+    num_steps: int = 128  # rollout steps per environment per update
+    total_timesteps: int = 2_000_000  # env steps of the run, rounded down to whole chunks
+    update_epochs: int = 4  # passes over each rollout
+    num_minibatches: int = 8  # minibatches per pass
+    lr: float = 1e-3  # Adam step size
+    anneal_lr: bool = True  # anneal the step size linearly to 0 over the run
+    gamma: float = 0.99  # discount
+    gae_lambda: float = 0.95  # GAE's lambda
+    clip_eps: float = 0.2  # PPO's ratio and value clip
+    ent_coef: float = 0.01  # entropy bonus
+    vf_coef: float = 0.5  # value-loss weight
+    max_grad_norm: float = 0.5  # global gradient-norm clip
+    reward_mode: str = "none"  # none | shaped | checker | lagrangian
+    penalty: float = 1.0  # reward subtracted per violation (shaped) or alarm (checker)
+    penalty_start: float = 0.2  # fraction of the run before the constraint acts
+    penalty_warmup: float = 0.1  # fraction of the run over which the penalty ramps up
+    checker_threshold: float = 0.5  # checker probability above which it alarms
+    soft_checker: bool = False  # penalise the checker's probability instead of its alarm
+    cost_target: float = 0.05  # Lagrangian: alarms per episode to hold
+    lagrangian_lr: float = 0.05  # Lagrangian: multiplier step size
+    lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
+    novelty_bonus: float = 0.0  # episodic bonus per new (cell, carrying) pair, annealed to 0
+    eval_every: int = 10  # updates between evaluations (one chunk)
+    eval_episodes: int = 50  # fixed-seed episodes per evaluation
+    eval_seed: int = 20_200_207  # key of the evaluation episodes, shared by every method
+    seed: int = 0  # seed of a single run
+    conv_channels: tuple[int, ...] = (16,)  # 3x3 convolutions of the view encoder; () for an MLP
 
     def __post_init__(self):
         try:  # a dict or pairs -> sorted pairs, so that the config stays hashable
@@ -168,7 +169,7 @@ def check_checker(config: PPOConfig, checker, env) -> None:
     if config.uses_checker and checker is None:
         raise ValueError(
             f"PPOConfig.reward_mode={config.reward_mode!r} needs a trained checker: pass "
-            "checker=checker.load(DIR) (or train one with `python -m checker.train`)"
+            "checker=checker.load(DIR) (or train one with `python -m checker`)"
         )
     if checker is not None and checker.config.view_size != env.view_size:
         raise ValueError(

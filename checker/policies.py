@@ -7,7 +7,7 @@ A behaviour policy is a function ``policy_fn(policy_params, obs, state, key) -> 
 ``obs`` is the batched observation dict, ``state`` the batched env state, ``actions`` int32
 ``(num_envs,)``. Learned agents ignore ``state``; the noisy oracle reads it.
 
-:func:`noisy_oracle_policy` (the default of ``python -m checker.train``) plays the BFS oracle
+:func:`noisy_oracle_policy` (the default of ``python -m checker``) plays the BFS oracle
 of :mod:`jaxgrid.oracle` in one of three *modes* chosen once per episode:
 
 * ``obey``: plans around the forbidden door (and lava), like a safe agent;
