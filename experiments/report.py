@@ -38,6 +38,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from agents.config import REWARD_MODES
 from jaxgrid.io import atomic_write, write_json
 
 __all__ = [
@@ -62,10 +63,8 @@ __all__ = [
 # Schema
 # ----------------------------------------------------------------------------------------------
 
-#: The reward/cost modes (the same set as ``agents.config.REWARD_MODES``, a tested equality) in
-#: display order: the paper's method first, then its baselines. ``REWARD_MODES`` has an order
-#: of its own, so tables and figures take theirs from here.
-MODES: tuple[str, ...] = ("checker", "shaped", "none", "lagrangian")
+#: The reward/cost modes, in the display order of tables and figures.
+MODES: tuple[str, ...] = REWARD_MODES
 
 #: One fixed colour per mode, shared by every figure.
 MODE_COLORS: dict[str, str] = {
