@@ -136,3 +136,63 @@ def test_module_itself_does_not_import_jax():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "{'a':", "[1]}"]
+
+
+# ---------------------------------------------------------------- jaxgrid.rundir
+def test_sha256_file_matches_the_bytes_and_changes_with_one_flipped_bit(tmp_path):
+    from jaxgrid import rundir
+
+    path = tmp_path / "p.bin"
+    path.write_bytes(b"parameters" * 1000)
+    digest = rundir.sha256_file(path)
+    assert digest == rundir.sha256_bytes(b"parameters" * 1000)
+    data = bytearray(path.read_bytes())
+    data[5000] ^= 1
+    path.write_bytes(bytes(data))
+    assert rundir.sha256_file(path) != digest
+
+
+def test_lock_is_exclusive_names_its_holder_and_is_released(tmp_path):
+    import os
+    import socket
+
+    from jaxgrid import rundir
+
+    with rundir.lock(tmp_path / "run", "first") as held:
+        assert held.path.is_file()
+        with pytest.raises(rundir.LockHeld) as e:
+            rundir.lock(tmp_path / "run", "second")
+        assert f"pid {os.getpid()} on {socket.gethostname()}" in str(e.value)
+        assert "first" in str(e.value) and str(held.path) in str(e.value)
+    assert not (tmp_path / "run" / rundir.LOCK_FILE).exists()
+    with pytest.raises(KeyError):  # released on an exception too
+        with rundir.lock(tmp_path / "run"):
+            raise KeyError("boom")
+    rundir.lock(tmp_path / "run").release()
+
+
+def test_lock_of_a_dead_process_is_taken_over_with_a_message(tmp_path, capsys):
+    import json
+    import socket
+
+    from jaxgrid import rundir
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    pid = int(dead.stdout)
+    (tmp_path / rundir.LOCK_FILE).write_text(json.dumps({"pid": pid,
+                                                          "host": socket.gethostname()}))
+    with rundir.lock(tmp_path):
+        assert "no longer runs" in capsys.readouterr().err
+    # Another host's lock is never taken over: its pid cannot be checked from here.
+    (tmp_path / rundir.LOCK_FILE).write_text(json.dumps({"pid": pid, "host": "elsewhere"}))
+    with pytest.raises(rundir.LockHeld, match="elsewhere"):
+        rundir.lock(tmp_path)
+
+
+def test_lock_refuses_a_file_as_directory(tmp_path):
+    from jaxgrid import rundir
+
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(ValueError, match="is a file"):
+        rundir.lock(tmp_path / "f")

@@ -1,0 +1,148 @@
+"""Run directories: one writer at a time, and checksums that tell a damaged file from a good one.
+
+- :func:`lock` / :class:`RunLock`: ``DIR/.lock``, created with ``O_CREAT | O_EXCL`` and
+  holding the owner's pid and host, is taken before a command writes into ``DIR`` and removed
+  when it stops (normally, on an exception or on Ctrl-C). A second process gets
+  :class:`LockHeld` at once, naming the holder. A lock left by a dead process of this host (its
+  pid no longer runs) is taken over, with a message on stderr; a lock of another host is never
+  taken over, since its pid cannot be checked from here.
+- :func:`sha256_bytes` / :func:`sha256_file`: the digest recorded in a parameter file's JSON
+  sidecar and checked when the file is loaded, so a truncated or bit-flipped file is refused
+  instead of loading as different numbers.
+
+Standard library only.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import socket
+import sys
+from pathlib import Path
+
+__all__ = ["LOCK_FILE", "LockHeld", "RunLock", "lock", "sha256_bytes", "sha256_file"]
+
+LOCK_FILE = ".lock"
+
+
+class LockHeld(RuntimeError):
+    """Another live process writes into the run directory."""
+
+
+def sha256_bytes(data: bytes) -> str:
+    """Hex SHA-256 of ``data``."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    """Hex SHA-256 of the file at ``path``."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by another user
+        return True
+    return True
+
+
+class RunLock:
+    """The lock of one run directory; a context manager (see :func:`lock`)."""
+
+    def __init__(self, directory: str | os.PathLike, what: str = "run"):
+        self.directory = Path(directory)
+        self.path = self.directory / LOCK_FILE
+        self.what = what
+        self.held = False
+
+    def acquire(self) -> RunLock:
+        """Take the lock; ``LockHeld`` naming the holder if a live process has it.
+
+        ``ValueError`` if the directory cannot be created (e.g. it is a file)."""
+        if self.directory.exists() and not self.directory.is_dir():
+            raise ValueError(f"{self.directory} is a file, not a directory")
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise ValueError(f"{self.directory}: cannot create ({e.strerror or e})") from None
+        me = {"pid": os.getpid(), "host": socket.gethostname(), "what": self.what}
+        for _ in range(3):  # a stale lock is removed, then created again
+            try:
+                fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            except FileExistsError:
+                holder = self._holder()
+                if holder is None:  # released meanwhile: try again
+                    continue
+                if not self._stale(holder):
+                    raise LockHeld(self._held_message(holder)) from None
+                print(f"{self.path}: taking over the lock of {self._who(holder)}, which no "
+                      "longer runs", file=sys.stderr)  # fmt: skip
+                self.path.unlink(missing_ok=True)
+                continue
+            except OSError as e:
+                if e.errno in (errno.EACCES, errno.EROFS, errno.EPERM):
+                    raise ValueError(f"{self.directory}: not writable ({e.strerror})") from None
+                raise
+            with os.fdopen(fd, "w") as f:
+                json.dump(me, f)
+            self.held = True
+            return self
+        raise LockHeld(self._held_message(self._holder()))
+
+    def release(self) -> None:
+        """Remove the lock file if this object holds it."""
+        if self.held:
+            self.path.unlink(missing_ok=True)
+            self.held = False
+
+    def __enter__(self) -> RunLock:
+        return self if self.held else self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    def _holder(self) -> dict | None:
+        try:
+            holder = json.loads(self.path.read_text())
+            return holder if isinstance(holder, dict) else {}
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError):
+            return {}  # being written right now, or damaged: its owner is unknown
+
+    @staticmethod
+    def _stale(holder: dict) -> bool:
+        pid = holder.get("pid")
+        if holder.get("host") != socket.gethostname() or not isinstance(pid, int):
+            return False
+        return not _alive(pid)
+
+    @staticmethod
+    def _who(holder: dict | None) -> str:
+        if not holder:
+            return "an unknown process"
+        return f"{holder.get('what', 'a run')} pid {holder.get('pid')} on {holder.get('host')}"
+
+    def _held_message(self, holder: dict | None) -> str:
+        return (f"{self.directory} is in use by {self._who(holder)} (lock file {self.path}); "
+                "wait for it, pick another directory, or delete the lock file if that process "
+                "is gone")  # fmt: skip
+
+
+def lock(directory: str | os.PathLike, what: str = "run") -> RunLock:
+    """Take the lock of ``directory`` (created if missing) for a process writing into it.
+
+    Use as ``with lock(out, "python -m checker"): ...``: released on any exit of the block.
+    Raises :class:`LockHeld` (naming the holder's pid and host) when a live process holds it.
+    """
+    return RunLock(directory, what).acquire()
