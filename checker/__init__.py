@@ -12,7 +12,6 @@ constraint's sentence, mean a violation is about to happen?
   a checker is trained (``python -m checker`` collects noisy-oracle windows and runs it);
 * :mod:`checker.cli`: the command lines, generated from the configs' dataclasses;
 * :mod:`checker.metrics`: classification metrics, lead time, :func:`evaluate`;
-* :mod:`checker.bench`: the checker's cost per env step (``python -m checker.bench``).
 
 ``checker`` imports ``jaxgrid`` only (never ``agents`` or ``experiments``).
 """

@@ -1,5 +1,5 @@
 """Command lines generated from frozen dataclasses, for ``python -m checker``,
-``python -m checker.bench`` and ``python -m experiments.<name>``.
+``python -m benchmarks.checker_cost`` and ``python -m experiments.<name>``.
 
 :func:`parse` builds the parser with tyro from the fields of a config and of the configs it
 nests: every field is one flat flag (``--field-name``, or the name given in ``names``; ``None``

@@ -17,7 +17,7 @@ from helpers.checker_cases import TINY, toy_split
 from helpers.cli_help import help_entries, squeezed
 
 import checker
-from checker import CheckerTrainConfig, bench, train_checker
+from checker import CheckerTrainConfig, train_checker
 from checker import __main__ as checker_main
 
 
@@ -94,18 +94,6 @@ def test_out_is_required(capsys):
         checker_main.main([])
     assert exc.value.code == 2 and "--out" in capsys.readouterr().err
 
-
-def test_bench_flags(capsys, compiles):
-    with pytest.raises(SystemExit) as exc:
-        bench.main(["--envs", "8", "0"])
-    assert exc.value.code == 2 and "--envs: every count must be >= 1" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as exc:
-        bench.main(["--help"])
-    assert exc.value.code == 0
-    entries = help_entries(capsys.readouterr().out)
-    assert {"--env", "--envs", "--steps", "--repeats", "--checker"} <= set(entries)
-    assert "(default:2561024 4096)".replace(" ", "") in squeezed(entries["--envs"])
-    assert not compiles
 
 
 def test_train_config_names_the_field_it_rejects():

@@ -1,10 +1,11 @@
-"""Cost of the checker per env step, as the PPO step pays it: ``python -m checker.bench``.
+"""Cost of the checker per env step: ``python -m benchmarks.checker_cost``.
 
 Times a jitted ``lax.scan`` of ``--steps`` steps of ``AutoReset(env)`` under ``vmap`` with
 random actions, with and without the checker's per-step work (``push`` + ``violation_prob``),
-for each ``--envs`` count; compile time is excluded (one warm-up call), ``block_until_ready``
-closes each timing and the best of ``--repeats`` is reported. Parameters are fresh (the cost
-does not depend on their values) unless ``--checker DIR`` is given.
+for each ``--envs`` count, with :mod:`benchmarks.timing`'s protocol (compiled ahead, compile
+time reported apart, each call closed by ``block_until_ready``); the best of ``--repeats``
+calls is reported. Parameters are fresh (the cost does not depend on their values) unless
+``--checker DIR`` is given.
 """
 
 from __future__ import annotations
@@ -12,12 +13,12 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import time
 
 import jax
 import jax.numpy as jnp
 from jax import lax
 
+from benchmarks import timing
 from checker import cli
 from checker.model import CheckerConfig
 from checker.reward import init_buffer, push, violation_prob
@@ -25,7 +26,6 @@ from checker.trained import load, new_checker
 from jaxgrid.wrappers import AutoReset
 
 
-@functools.partial(jax.jit, static_argnames=("num_envs", "steps", "use_checker"))
 def _run(env, trained, key, *, num_envs, steps, use_checker):
     states, ts = jax.vmap(env.reset)(jax.random.split(key, num_envs))
     buf = push(
@@ -55,16 +55,10 @@ def measure(env, trained, num_envs: int, steps: int, repeats: int = 3) -> dict:
     env = env if isinstance(env, AutoReset) else AutoReset(env)
     out = {"num_envs": num_envs, "steps": steps}
     for name, use in (("env_only", False), ("env_plus_checker", True)):
-        run = functools.partial(_run, num_envs=num_envs, steps=steps, use_checker=use)
-        t0 = time.perf_counter()
-        run(env, trained, jax.random.PRNGKey(0)).block_until_ready()
-        out[f"{name}_compile_s"] = time.perf_counter() - t0
-        best = float("inf")
-        for r in range(repeats):
-            t0 = time.perf_counter()
-            run(env, trained, jax.random.PRNGKey(r + 1)).block_until_ready()
-            best = min(best, time.perf_counter() - t0)
-        out[f"{name}_s"] = best
+        run = functools.partial(_run, env, num_envs=num_envs, steps=steps, use_checker=use)
+        t = timing.measure(run, trained, jax.random.PRNGKey(0), repeats=repeats)
+        out[f"{name}_compile_s"] = t.compile_s
+        out[f"{name}_s"] = t.best_s
     n = num_envs * steps
     out["env_us_per_env_step"] = out["env_only_s"] / n * 1e6
     out["checker_us_per_env_step"] = (out["env_plus_checker_s"] - out["env_only_s"]) / n * 1e6
@@ -97,7 +91,8 @@ class BenchConfig:
 def main(argv=None) -> list[dict]:
     import jaxgrid
 
-    args = cli.parse(BenchConfig, argv, prog="python -m checker.bench", description=__doc__)
+    prog = "python -m benchmarks.checker_cost"
+    args = cli.parse(BenchConfig, argv, prog=prog, description=__doc__)
     env = jaxgrid.make(args.env)
     trained = (
         load(args.checker)
