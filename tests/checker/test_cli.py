@@ -1,6 +1,6 @@
 """The checker's command lines, generated from its configs: ``python -m checker`` (every
-training setting a flag, ``--counterfactuals`` and ``--distractors`` included), ``python -m
-checker.bench``, usage errors naming the flag before anything compiles, and the test and
+training setting a flag, ``--counterfactuals`` and ``--distractors`` included), usage errors
+naming the flag before anything compiles, and the test and
 validation splits that :class:`checker.CheckerTrainConfig` sets for :func:`checker.train_checker`.
 """
 
