@@ -1,0 +1,184 @@
+"""``agents.train``: ``jit(vmap(make_train))`` over seeds, the Lagrange multiplier, the MLP
+view encoder, the sentence encoders on the table's real tokens only, and schedules that end
+on the last update actually run."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+from helpers.agents_cases import SEEDS, TINY, fast_jit, keys_of, leaves
+
+from agents.config import PPOConfig
+from agents.train import make_learner, make_train
+
+LAGRANGIAN = dataclasses.replace(
+    TINY, reward_mode="lagrangian", checker_threshold=0.0, cost_target=0.25, lagrangian_lr=0.1
+)
+
+
+@pytest.fixture(scope="module")
+def lagrangian_train(tiny_checker):
+    train = fast_jit(jax.vmap(make_train(LAGRANGIAN, tiny_checker)))
+    first = jax.device_get(train(keys_of(*SEEDS)))
+    again = jax.device_get(train(keys_of(*SEEDS)))
+    return first, again
+
+
+def test_vmapped_train_over_seeds(lagrangian_train):
+    out, again = lagrangian_train
+    n, k = LAGRANGIAN.num_chunks, LAGRANGIAN.eval_every
+    assert out["train"]["loss"].shape == (2, n, k)
+    for name, value in out["eval"].items():
+        assert value.shape == (2, n), name
+    for path, x in jax.tree_util.tree_leaves_with_path(out):
+        if np.issubdtype(np.asarray(x).dtype, np.floating):
+            assert np.all(np.isfinite(x)), jax.tree_util.keystr(path)
+    assert np.all(out["runner"].update == LAGRANGIAN.num_updates)
+    assert np.all(out["train"]["episodes"] >= 0)
+    # Different seeds, different agents; the same seed, bit-identical results (CPU).
+    params = out["runner"].params
+    assert any(not np.array_equal(x[0], x[1]) for x in jax.tree.leaves(params))
+    for a, b in zip(leaves(out), leaves(again), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_lagrange_multiplier_rises_with_cost(lagrangian_train):
+    out, _ = lagrangian_train
+    t = out["train"]
+    cost = t["cost_rate"].reshape(2, -1)
+    episode_cost = t["episode_cost"].reshape(2, -1)
+    lam = t["lagrange"].reshape(2, -1)
+    # Threshold 0: every step raises an alarm, so the cost rate is 1 and the cost per finished
+    # episode is the rollout's steps over its episodes, far above cost_target.
+    np.testing.assert_allclose(cost, 1.0)
+    episodes = t["episodes"].reshape(2, -1)
+    np.testing.assert_allclose(
+        episode_cost, LAGRANGIAN.batch_size / np.maximum(episodes, 1), rtol=1e-6
+    )
+    prev = np.concatenate([np.full((2, 1), LAGRANGIAN.lagrangian_init), lam[:, :-1]], axis=1)
+    step = LAGRANGIAN.lagrangian_lr * (episode_cost - LAGRANGIAN.cost_target)
+    expected = np.maximum(0.0, prev + step)
+    np.testing.assert_allclose(lam, expected, rtol=1e-6)
+    assert np.all(np.diff(lam, axis=1) > 0) and np.all(lam[:, 0] > 0)
+    assert np.all(t["alarms"] == LAGRANGIAN.batch_size)
+    assert np.all(np.asarray(out["runner"].lagrange) == lam[:, -1])
+
+
+def test_lagrange_multiplier_waits_for_penalty_start(tiny_checker):
+    """Before ``penalty_start`` the multiplier stays at ``lagrangian_init``; then it moves."""
+    # penalty=0: the multiplier follows the schedule, not the shaping penalty's size.
+    config = dataclasses.replace(LAGRANGIAN, penalty_start=0.5, penalty=0.0)
+    learner = make_learner(config, tiny_checker)
+    runner = fast_jit(learner.init)(jax.random.PRNGKey(0))
+    update = fast_jit(learner.update)
+    lams = []
+    for _ in range(config.num_updates):
+        runner, m = update(runner)
+        lams.append(float(m["lagrange"]))
+    half = config.num_updates // 2
+    assert all(lam == config.lagrangian_init for lam in lams[:half])
+    assert lams[-1] > config.lagrangian_init
+
+
+def test_mlp_view_encoder_option():
+    """``conv_channels=()`` builds the policy without the convolution and still trains."""
+    config = dataclasses.replace(TINY, conv_channels=[])
+    assert config.conv_channels == () and hash(config) != hash(TINY)
+    learner = make_learner(config)
+    assert learner.network.conv_channels == ()
+    runner = fast_jit(learner.init)(jax.random.PRNGKey(0))
+    assert not any("convs" in jax.tree_util.keystr(p) for p, _ in
+                   jax.tree_util.tree_leaves_with_path(runner.params))  # fmt: skip
+    runner, metrics = fast_jit(learner.update)(runner)
+    assert np.isfinite(float(metrics["loss"])) and int(runner.update) == 1
+
+
+def test_sentence_encoders_skip_the_pad_tail():
+    """The policy's sentence features run the GRU over the table's longest sentence only,
+    with the same bits as over every padded token."""
+    learner = make_learner(TINY)
+    lengths = np.sum(np.asarray(learner.table) != 0, axis=1)
+    assert learner.words == lengths.max() < learner.table.shape[1]
+    params = fast_jit(learner.init)(jax.random.PRNGKey(0)).params
+    full = fast_jit(learner.replace(words=learner.table.shape[1]).lang_table)(params)
+    np.testing.assert_array_equal(fast_jit(learner.lang_table)(params), full)
+
+
+# 183 updates' worth of steps and eval_every 10: the run is 18 chunks, 180 updates.
+ANNEALED = PPOConfig(
+    num_envs=8, num_steps=8, total_timesteps=183 * 64 + 17, update_epochs=2, num_minibatches=2,
+    eval_every=10, novelty_bonus=0.3, penalty=0.7, penalty_start=0.9, penalty_warmup=0.1,
+)  # fmt: skip
+
+
+def test_every_schedule_ends_on_the_last_update_run():
+    """The penalty ramp, the novelty anneal and the learning rate all span the updates
+    actually run (whole chunks), not ``total_timesteps // batch_size``.
+
+    The learning rate is read off the real optimizer (``learner.optimizer``): driven with the
+    same small gradient at every step, Adam's direction is the same at every step, so each
+    update is the scheduled learning rate times one constant. Optimizer step ``k`` belongs to
+    update ``k // (update_epochs * num_minibatches)``, which is how many steps
+    ``Learner.update`` takes (see :func:`test_learner_takes_one_optimizer_step_per_minibatch`).
+    """
+    c = ANNEALED
+    assert c.total_timesteps // c.batch_size == 183
+    assert c.num_updates == 180 == c.num_chunks * c.eval_every
+    learner = make_learner(c)
+    last = c.num_updates - 1
+    # Novelty: linear to 0, the last update pays 1/num_updates of the bonus, and 0 after it.
+    # (float32's 1 - 179/180 cancels: a few 1e-6 of relative error.)
+    novelty = jax.jit(learner.novelty_at)
+    assert float(novelty(jnp.int32(0))) == np.float32(c.novelty_bonus)
+    np.testing.assert_allclose(novelty(jnp.int32(last)), c.novelty_bonus / c.num_updates,
+                               rtol=1e-5)  # fmt: skip
+    assert float(novelty(jnp.int32(c.num_updates))) == 0.0
+    # Penalty: off for the first 90% of the updates, a ramp over the last 10% that reaches
+    # the full penalty on the last update, not after it.
+    ramp = np.asarray(jax.jit(jax.vmap(learner.penalty_at))(jnp.arange(c.num_updates)))
+    start = int(c.penalty_start * c.num_updates)
+    assert np.all(ramp[:start] == 0.0) and np.all(np.diff(ramp[start:]) > 0)
+    assert ramp[last] == np.float32(c.penalty) and ramp[last - 1] < np.float32(c.penalty)
+
+    per_update = c.update_epochs * c.num_minibatches
+    steps = c.num_updates * per_update
+    params = {"w": np.zeros(3, np.float32)}
+    grads = {"w": np.full(3, 0.01, np.float32)}  # global norm far below max_grad_norm
+
+    @fast_jit
+    def drive(params):
+        def step(carry, _):
+            params, state = carry
+            updates, state = learner.optimizer.update(grads, state, params)
+            return (optax.apply_updates(params, updates), state), updates["w"][0]
+
+        (_, state), sizes = jax.lax.scan(
+            step, (params, learner.optimizer.init(params)), None, steps + 1
+        )
+        return state, sizes
+
+    state, sizes = jax.device_get(drive(params))
+    multiplier = sizes / sizes[0]
+    expected = 1.0 - (np.arange(steps + 1) // per_update) / c.num_updates
+    # Neighbouring updates' multipliers differ by 1/180 of the first, at least 0.5% of
+    # either; float32's 1 - 179/180 and Adam's rounding stay near 1e-5.
+    np.testing.assert_allclose(multiplier, expected, rtol=1e-4, atol=0)
+    assert sizes[steps - 1] < 0 and sizes[steps] == 0.0  # last step of the last update, after
+    counts = optax.tree_utils.tree_get_all_with_path(state, "count")
+    assert counts and all(int(n) == steps + 1 for _, n in counts)
+
+
+def test_learner_takes_one_optimizer_step_per_minibatch(lagrangian_train):
+    """``num_updates`` updates take ``num_updates * update_epochs * num_minibatches``
+    optimizer steps: the count the learning-rate schedule is written against."""
+    out, _ = lagrangian_train
+    c = LAGRANGIAN
+    counts = optax.tree_utils.tree_get_all_with_path(out["runner"].opt_state, "count")
+    assert counts
+    for _, n in counts:
+        np.testing.assert_array_equal(n, c.num_updates * c.update_epochs * c.num_minibatches)
