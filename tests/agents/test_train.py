@@ -122,9 +122,10 @@ def test_every_schedule_ends_on_the_last_update_run():
 
     The learning rate is read off the real optimizer (``learner.optimizer``): driven with the
     same small gradient at every step, Adam's direction is the same at every step, so each
-    update is the scheduled learning rate times one constant. Optimizer step ``k`` belongs to
-    update ``k // (update_epochs * num_minibatches)``, which is how many steps
-    ``Learner.update`` takes (see :func:`test_learner_takes_one_optimizer_step_per_minibatch`).
+    step's change is the scheduled learning rate times one constant. ``Learner.update``
+    takes ``update_epochs * num_minibatches`` optimizer steps
+    (:func:`test_learner_takes_one_optimizer_step_per_minibatch`), so optimizer step ``k``
+    belongs to update ``k // (update_epochs * num_minibatches)``.
     """
     c = ANNEALED
     assert c.total_timesteps // c.batch_size == 183
