@@ -7,6 +7,7 @@ compiled. The config is hashable so that it can be a static argument of jitted f
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -96,6 +97,10 @@ class PPOConfig:
             value = getattr(self, name)
             if not isinstance(value, int | np.integer) or value <= 0:
                 raise ValueError(f"PPOConfig.{name} must be a positive integer, got {value!r}")
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float | np.floating) and not math.isfinite(value):
+                raise ValueError(f"PPOConfig.{f.name} must be finite, got {value!r}")
         for name in ("lr", "clip_eps", "max_grad_norm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"PPOConfig.{name} must be > 0, got {getattr(self, name)!r}")
