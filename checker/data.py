@@ -77,6 +77,7 @@ from checker.trained import check_vocab
 from jaxgrid import language
 from jaxgrid.constants import BALL, BOX, CLOSED, COLOR_NAMES, DOOR, EMPTY, KEY, LOCKED
 from jaxgrid.io import atomic_write, read_json, write_json
+from jaxgrid.rundir import sha256_bytes, sha256_file
 from jaxgrid.wrappers import AutoReset
 
 __all__ = [
@@ -219,7 +220,8 @@ class CheckerDataset:
         return base + ".npz", base + ".json"
 
     def save(self, path: str | os.PathLike) -> tuple[str, str]:
-        """Write ``<path>.npz`` (arrays) and ``<path>.json`` (metadata); returns both paths."""
+        """Write ``<path>.npz`` (arrays) and ``<path>.json`` (metadata with the npz's sha256);
+        returns both paths. Each is written atomically, the arrays first."""
         npz, js = self._paths(path)
         arrays = {name: getattr(self, name) for name in _CORE}
         arrays.update({f"extra_{k}": v for k, v in self.extras.items()})
@@ -228,6 +230,7 @@ class CheckerDataset:
         atomic_write(npz, buf.getvalue())
         meta = {
             "format_version": FORMAT_VERSION,
+            "npz_sha256": sha256_bytes(buf.getvalue()),
             **self.meta,
             "vocab": list(language.VOCAB),
             "max_len": language.MAX_LEN,
@@ -240,7 +243,9 @@ class CheckerDataset:
         """Read a dataset written by :meth:`save` (``path`` with or without extension).
 
         ``FileNotFoundError`` names a missing file; ``ValueError`` names the file if it was made
-        for another vocabulary or ``MAX_LEN``, or is damaged.
+        for another vocabulary or ``MAX_LEN``, or is damaged: the npz must match the sha256
+        recorded in the JSON (a dataset saved before checksums were recorded is read without
+        that check).
         """
         npz, js = cls._paths(path)
         for p in (js, npz):
@@ -248,13 +253,19 @@ class CheckerDataset:
                 raise FileNotFoundError(f"checker dataset file not found: {p}")
         meta = read_json(js)
         check_vocab(meta, f"dataset {js}")
+        recorded = meta.get("npz_sha256")
+        if recorded is not None and sha256_file(npz) != recorded:
+            raise ValueError(f"{npz}: damaged dataset file (truncated or changed: its sha256 "
+                             f"differs from the one in {js}); delete both files and collect "
+                             "the data again")  # fmt: skip
         try:
             with np.load(npz, allow_pickle=False) as z:
                 arrays = {name: z[name] for name in _CORE}
                 extras = {k[len("extra_") :]: z[k] for k in z.files if k.startswith("extra_")}
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as e:
             raise ValueError(f"{npz}: damaged dataset file ({type(e).__name__}: {e})") from e
-        meta = {k: v for k, v in meta.items() if k not in ("vocab", "max_len", "format_version")}
+        own = ("vocab", "max_len", "format_version", "npz_sha256")
+        meta = {k: v for k, v in meta.items() if k not in own}
         return cls(**arrays, extras=extras, meta=meta)
 
 

@@ -3,8 +3,10 @@
 A checker directory holds ``params.msgpack`` (the Flax parameters, ``flax.serialization``)
 and ``config.json`` (the :class:`~checker.model.CheckerConfig`, the label ``lookahead``, the
 ``env_id`` it was trained on, the decision ``threshold`` and the vocabulary and ``MAX_LEN``
-it was trained with). :func:`load` refuses a directory made for another vocabulary or
-sentence length, since token ids would then mean other words.
+it was trained with, and ``params_sha256``, the checksum of ``params.msgpack``). :func:`load`
+refuses a directory made for another vocabulary or sentence length, since token ids would then
+mean other words, and a parameter file whose checksum differs (truncated, bit-flipped, or
+replaced without its ``config.json``), which would otherwise load as other numbers.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from flax import serialization, struct
 from checker.model import Checker, CheckerConfig, init_params, params_shape
 from jaxgrid import language
 from jaxgrid.io import atomic_write, read_json, write_json
+from jaxgrid.rundir import sha256_bytes
 
 PARAMS_FILE = "params.msgpack"
 CONFIG_FILE = "config.json"
@@ -97,13 +100,15 @@ def check_vocab(meta: dict, where: str) -> None:
 def save(trained: TrainedChecker, directory: str | os.PathLike) -> str:
     """Write ``params.msgpack`` and ``config.json`` under ``directory`` (created if needed).
 
-    Each file is written atomically, parameters first: a reader never sees half a file.
+    Each file is written atomically, parameters first: a reader never sees half a file, and
+    a crash between the two leaves a ``config.json`` whose checksum the new parameters fail.
     """
     directory = os.fspath(directory)
-    params = jax.device_get(trained.params)
-    atomic_write(os.path.join(directory, PARAMS_FILE), serialization.to_bytes(params))
+    data = serialization.to_bytes(jax.device_get(trained.params))
+    atomic_write(os.path.join(directory, PARAMS_FILE), data)
     meta = {
         "format_version": FORMAT_VERSION,
+        "params_sha256": sha256_bytes(data),
         "config": trained.config.to_dict(),
         "lookahead": trained.lookahead,
         "env_id": trained.env_id,
@@ -114,11 +119,20 @@ def save(trained: TrainedChecker, directory: str | os.PathLike) -> str:
     return directory
 
 
+def params_sha256(directory: str | os.PathLike) -> str | None:
+    """The checksum of the parameters saved in ``directory`` (from its ``config.json``);
+    ``None`` for a directory saved before checksums were recorded. A report records it, so
+    that a report and a checker can be matched."""
+    return read_json(os.path.join(os.fspath(directory), CONFIG_FILE)).get("params_sha256")
+
+
 def load(directory: str | os.PathLike) -> TrainedChecker:
     """Restore a :class:`TrainedChecker` written by :func:`save`, ready to use.
 
     Raises ``FileNotFoundError`` naming the missing path, ``ValueError`` naming the file for a
-    checker made for another vocabulary or ``MAX_LEN``, or a damaged file.
+    checker made for another vocabulary or ``MAX_LEN``, or a damaged file (a parameter file
+    that fails the checksum recorded in ``config.json``; a directory saved before checksums
+    were recorded is loaded without that check).
     """
     directory = os.fspath(directory)
     if not os.path.isdir(directory):
@@ -133,6 +147,13 @@ def load(directory: str | os.PathLike) -> TrainedChecker:
     config = CheckerConfig.from_dict(meta["config"])
     with open(params_path, "rb") as f:
         data = f.read()
+    recorded = meta.get("params_sha256")
+    if recorded is not None and sha256_bytes(data) != recorded:
+        raise ValueError(
+            f"{params_path}: damaged parameter file (truncated or changed: its sha256 differs "
+            f"from the one in {cfg_path}); retrain the checker (`python -m checker --out "
+            f"{directory} --overwrite`, or delete {directory} and rerun the experiment)"
+        )
     try:
         state = serialization.msgpack_restore(data)
     except Exception as e:  # msgpack's errors share no base class with a clear message
