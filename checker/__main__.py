@@ -8,16 +8,17 @@
 collects ``--samples`` balanced windows with the noisy oracle on the env's *train* language
 split, trains with :func:`checker.train_checker` (which splits off ``--test-fraction`` of them
 as the test set), writes ``DIR/params.msgpack`` + ``DIR/config.json`` (:func:`checker.load`
-restores it) and ``DIR/metrics.json``: test split, held-out language split
-(``jaxgrid.make(env, split="heldout")``), lead time on full episodes and, for TwoRooms
-checkers, transfer to ThreeRoomsKey-v0. It prints a summary and the wall times. ``--help``
-lists every flag with its default.
+restores it; ``config.json`` holds the parameters' sha256) and ``DIR/metrics.json`` (with the
+same sha256, so a report names the parameters it measured): test split, held-out language
+split (``jaxgrid.make(env, split="heldout")``), lead time on full episodes and, for TwoRooms
+checkers, transfer to ThreeRoomsKey-v0. It prints a summary and the wall times. ``DIR`` must
+be new or empty; ``--overwrite`` first removes an earlier checker's files there, so no stale
+report survives a retrained checker. ``--help`` lists every flag with its default.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import sys
 import time
@@ -36,7 +37,8 @@ TRANSFER_TARGET = "ThreeRoomsKey-v0"
 class CheckerRun:
     """Collect windows with the noisy oracle, train a checker on them and measure it."""
 
-    out: str  # directory of the checker (params.msgpack, config.json) and of metrics.json
+    out: str  # directory of the checker (params.msgpack, config.json) and of metrics.json; new
+    # or empty, unless --overwrite
     env: str = "TwoRooms-v0"  # the environment id whose windows are collected
     samples: int = 0  # windows collected; 0: the paper's size (15k TwoRoomsLava-v0, else 12k)
     num_envs: int = 256  # parallel envs of every collection
@@ -45,6 +47,7 @@ class CheckerRun:
     episode_envs: int = 64  # envs of the full episodes that measure the lead time
     episode_steps: int = 256  # steps of those episodes (0: none)
     progress: bool = True  # show progress bars
+    overwrite: bool = False  # clear a checker directory given as --out first (else refused)
     oracle: NoisyOracleParams = NoisyOracleParams()  # the behaviour policy (salt: --seed)
     train: CheckerTrainConfig = CheckerTrainConfig()  # every training setting
 
@@ -53,6 +56,8 @@ class CheckerRun:
 
         if not self.out:
             raise ValueError("CheckerRun.out: an output directory is required")
+        if os.path.exists(self.out) and not os.path.isdir(self.out):
+            raise ValueError(f"CheckerRun.out {self.out} is a file, not a directory")
         if self.env not in jaxgrid.registered_ids():
             raise ValueError(f"CheckerRun.env: unknown environment id {self.env!r}")
         minimum = {"samples": 0, "num_envs": 1, "heldout_samples": 0, "transfer_samples": 0,
@@ -60,6 +65,44 @@ class CheckerRun:
         for name, low in minimum.items():
             if getattr(self, name) < low:
                 raise ValueError(f"CheckerRun.{name} must be >= {low}, got {getattr(self, name)}")
+        s, samples = self.train, self.samples_used
+        if s.training_rows(samples) < s.batch_size:
+            raise ValueError(
+                f"CheckerRun.samples {samples} leaves {s.training_rows(samples)} windows to train "
+                f"on after CheckerTrainConfig.test_fraction {s.test_fraction} and "
+                f"CheckerTrainConfig.val_fraction {s.val_fraction}, fewer than "
+                f"CheckerTrainConfig.batch_size {s.batch_size}: raise the first or lower the last"
+            )
+
+    @property
+    def samples_used(self) -> int:
+        """``samples``, or the paper's size for ``env`` when it is 0."""
+        return self.samples or PAPER_SAMPLES.get(self.env, 12_000)
+
+
+# What a checker run writes into --out: all that --overwrite removes.
+OUTPUTS = ("params.msgpack", "config.json", "metrics.json", "report.json")
+
+
+def _fresh_out(args: CheckerRun) -> None:
+    """Make ``--out`` (locked by this process) empty: refuse a non-empty one without
+    ``--overwrite``; with it, remove a checker run's files and refuse anything else."""
+    from jaxgrid.rundir import LOCK_FILE
+
+    entries = sorted(e for e in os.listdir(args.out) if e != LOCK_FILE)
+    if not entries:
+        return
+    if not args.overwrite:
+        raise ValueError(f"--out {args.out} is not empty ({', '.join(entries[:5])}); pick a new "
+                         "directory, or pass --overwrite to replace the checker there")  # fmt: skip
+    foreign = [e for e in entries if e not in OUTPUTS and not e.endswith(".tmp")]
+    if foreign:
+        raise ValueError(f"--out {args.out} holds files no checker run writes "
+                         f"({', '.join(foreign[:5])}); --overwrite clears only a checker "
+                         "directory: pick a new --out")  # fmt: skip
+    for e in entries:
+        os.remove(os.path.join(args.out, e))
+    print(f"--overwrite: removed {', '.join(entries)} from {args.out}", file=sys.stderr)
 
 
 def parse(argv=None) -> CheckerRun:
@@ -80,16 +123,31 @@ def _row(name: str, m: dict | None) -> str:
 
 
 def main(argv=None) -> dict:
-    """Run ``python -m checker`` with ``argv`` (default ``sys.argv[1:]``); returns the report."""
+    """Run ``python -m checker`` with ``argv`` (default ``sys.argv[1:]``); returns the report.
+
+    Bad flags exit with status 2 before anything compiles. ``--out`` is locked for the run
+    (:func:`jaxgrid.rundir.lock`); before any work, a second process on it gets
+    :class:`~jaxgrid.rundir.LockHeld` and a non-empty ``--out`` without ``--overwrite`` a
+    ``ValueError`` (``python -m checker`` exits with status 2 on both).
+    """
     args = parse(argv)
+    from jaxgrid.rundir import lock
+
+    with lock(args.out, "python -m checker"):
+        _fresh_out(args)
+        return _run(args)
+
+
+def _run(args: CheckerRun) -> dict:
     import jaxgrid
     from checker.data import collect, collect_episodes
     from checker.metrics import evaluate
     from checker.policies import noisy_oracle_policy
-    from checker.trained import save
+    from checker.trained import params_sha256, save
+    from jaxgrid.io import write_json
 
     settings = args.train
-    samples = args.samples or PAPER_SAMPLES.get(args.env, 12_000)
+    samples = args.samples_used
     policy = dataclasses.replace(args.oracle, salt=settings.seed)
     key = jax.random.PRNGKey(settings.seed)
     k_data, k_held, k_trans, k_ep = jax.random.split(key, 4)
@@ -106,6 +164,7 @@ def main(argv=None) -> dict:
     jax.block_until_ready(trained.params)
     t_train_done = time.perf_counter()
     save(trained, args.out)
+    digest = params_sha256(args.out)
 
     metrics = {"test": evaluate(trained, test) if test is not None else None}
     t_eval0 = time.perf_counter()
@@ -139,9 +198,9 @@ def main(argv=None) -> dict:
             "cpu_count": os.cpu_count(),
         },
         "metrics": metrics,
+        "params_sha256": digest,  # the parameters measured here (checked by --checker reuse)
     }
-    with open(os.path.join(args.out, "metrics.json"), "w") as f:
-        json.dump(report, f, indent=2)
+    write_json(os.path.join(args.out, "metrics.json"), report)
 
     print(f"checker for {args.env} (window {settings.window}, lookahead {settings.lookahead}, "
           f"seed {settings.seed}) -> {args.out}")  # fmt: skip
@@ -169,8 +228,10 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
+    from jaxgrid.rundir import LockHeld
+
     try:
         main()
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, FileNotFoundError, LockHeld) as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

@@ -17,6 +17,7 @@ function and gradients as encoding every row, at a fraction of the GRU's cost.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import warnings
 
@@ -72,6 +73,10 @@ class CheckerTrainConfig:
             if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < low:
                 raise ValueError(f"CheckerTrainConfig.{name} must be an integer >= {low}, "
                                  f"got {value!r}")  # fmt: skip
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"CheckerTrainConfig.{f.name} must be finite, got {value!r}")
         checks = (
             ("lr", self.lr > 0, "> 0"),
             ("weight_decay", self.weight_decay >= 0, ">= 0"),
@@ -89,6 +94,12 @@ class CheckerTrainConfig:
                 f"CheckerTrainConfig.test_fraction + CheckerTrainConfig.val_fraction must be "
                 f"< 1, got {self.test_fraction} + {self.val_fraction}"
             )
+
+    def training_rows(self, samples: int) -> int:
+        """The rows of ``samples`` windows left to train on by the test and validation splits,
+        before augmentation: at least :attr:`batch_size` are needed, which a command checks
+        before collecting anything."""
+        return int(samples * (1 - self.test_fraction - self.val_fraction))
 
 
 def _token_table(*token_arrays: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
