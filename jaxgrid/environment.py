@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from jaxgrid.constants import EMPTY_CELL, NUM_ACTIONS
@@ -18,7 +21,9 @@ class Environment(struct.PyTreeNode):
     The object holds configuration only. Shape-defining settings are static (hashable), so
     ``jax.jit(env.step)`` compiles once; numeric settings a user may want to ``vmap`` over are
     pytree leaves declared by subclasses. Subclasses implement :meth:`generate` (the layout
-    distribution) and may extend :meth:`observe` and :meth:`step`.
+    distribution) and may extend :meth:`observe` and :meth:`step`; a subclass whose layouts
+    need more room than a 1x1 grid says so in :meth:`min_size`, which construction enforces.
+    An overriding ``step`` should call :func:`check_action` first, as :meth:`step` does.
     """
 
     width: int = struct.field(pytree_node=False)
@@ -31,6 +36,11 @@ class Environment(struct.PyTreeNode):
         _check_config(self)
 
     # --- to implement -------------------------------------------------------------------
+    def min_size(self) -> tuple[int, int, str]:
+        """``(min_width, min_height, why)``: the smallest grid (outer walls included) whose
+        layouts put every object on a legal cell, and the reason, quoted in the error."""
+        return 1, 1, "a grid needs a cell"
+
     def generate(self, key: jax.Array) -> State:
         """Sample a fresh episode's state (layout, agent pose) with ``step_count == 0``.
 
@@ -45,13 +55,23 @@ class Environment(struct.PyTreeNode):
         return NUM_ACTIONS
 
     def reset(self, key: jax.Array) -> tuple[State, TimeStep]:
-        """Start an episode: ``(state, timestep)`` with zero reward, not done."""
+        """Start an episode: ``(state, timestep)`` with zero reward, not done.
+
+        ``key`` is one PRNG key (``jax.random.key(s)`` or ``jax.random.PRNGKey(s)``); a concrete
+        non-key raises (:func:`check_key`). ``jax.vmap(env.reset)(keys)`` resets a batch.
+        """
+        check_key(key)
         key, layout_key = jax.random.split(key)
         state = self.generate(layout_key).replace(key=key)
         return state, self.first_timestep(state)
 
     def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
-        """One raw MiniGrid step (no auto-reset). Actions outside ``0..6`` act as ``done``."""
+        """One raw MiniGrid step (no auto-reset). Actions outside ``0..6`` act as ``done``.
+
+        ``action`` is an integer scalar; a concrete float, string or array of another shape
+        raises (:func:`check_action`). ``jax.vmap(env.step)`` steps a batch.
+        """
+        check_action(action)
         state, reward, terminated, truncated = transition(state, action, self.max_steps)
         return state, self.make_timestep(state, reward, terminated, truncated)
 
@@ -100,11 +120,73 @@ class Environment(struct.PyTreeNode):
         )
 
 
+def check_action(action) -> None:
+    """Raise if a concrete ``action`` is not one integer scalar; do nothing under ``jit``/``vmap``.
+
+    A float (``2.7``), a string or a bool raises ``TypeError``; an integer array of another
+    shape than ``()`` raises ``ValueError``. Traced actions are not inspected, so the jitted
+    step gains no work and an out-of-range integer still acts as ``done`` everywhere.
+    """
+    if isinstance(action, jax.core.Tracer):
+        return
+    expected = "an integer scalar (a MiniGrid action 0..6; other integers act as done)"
+    if isinstance(action, int) and not isinstance(action, bool):
+        return
+    dtype = getattr(action, "dtype", None)
+    if not isinstance(action, (np.ndarray, np.generic, jax.Array)) or not jnp.issubdtype(
+        dtype, jnp.integer
+    ):
+        what = f"{type(action).__name__} {action!r}" if dtype is None else f"dtype {dtype}"
+        raise TypeError(f"step's action must be {expected}, got {what}")
+    if action.shape != ():
+        raise ValueError(
+            f"step's action must be {expected}, got an array of shape {action.shape}; "
+            "step a batch with jax.vmap(env.step)"
+        )
+
+
+@functools.cache
+def _raw_key_shape(impl: str) -> tuple[int, ...]:
+    del impl  # the cache key: the default PRNG implementation fixes the raw key's shape
+    return jax.eval_shape(lambda: jax.random.PRNGKey(0)).shape
+
+
+def check_key(key) -> None:
+    """Raise if a concrete ``key`` is not one PRNG key; do nothing under ``jit``/``vmap``.
+
+    Accepted: a typed key of shape ``()`` (``jax.random.key(s)``) or a raw uint32 key
+    (``jax.random.PRNGKey(s)``). Anything else, e.g. the int ``0``, raises ``TypeError``;
+    a key array of another shape (a batch) raises ``ValueError``.
+    """
+    if isinstance(key, jax.core.Tracer):
+        return
+    expected = "one PRNG key, e.g. jax.random.key(0) or jax.random.PRNGKey(0)"
+    dtype = getattr(key, "dtype", None)
+    if isinstance(key, jax.Array) and jnp.issubdtype(dtype, jax.dtypes.prng_key):
+        shape = ()
+    elif isinstance(key, (np.ndarray, jax.Array)) and dtype == np.uint32:
+        shape = _raw_key_shape(jax.config.jax_default_prng_impl)
+    else:
+        what = f"{type(key).__name__} {key!r}" if dtype is None else f"an array of dtype {dtype}"
+        raise TypeError(f"reset's key must be {expected}, got {what}")
+    if key.shape != shape:
+        raise ValueError(
+            f"reset's key must be {expected} (shape {shape}), got shape {key.shape}; "
+            "reset a batch with jax.vmap(env.reset)(jax.random.split(key, n))"
+        )
+
+
 def _check_config(env: Environment) -> None:
-    for name in ("width", "height", "max_steps"):
-        value = getattr(env, name)
+    name = type(env).__name__
+    for field in ("width", "height", "max_steps"):
+        value = getattr(env, field)
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-            raise ValueError(f"{type(env).__name__}.{name} must be a positive int, got {value!r}")
+            raise ValueError(f"{name}.{field} must be a positive int, got {value!r}")
+    min_width, min_height, why = env.min_size()
+    for field, low in (("width", min_width), ("height", min_height)):
+        value = getattr(env, field)
+        if value < low:
+            raise ValueError(f"{name}.{field} must be at least {low} ({why}), got {value}")
     v = env.view_size
     # At most 31: the occlusion pass holds a view row in the bits of an int32.
     if not isinstance(v, int) or v < 3 or v % 2 == 0 or v > 31:

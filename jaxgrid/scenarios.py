@@ -43,7 +43,7 @@ from jaxgrid.constants import (
     YELLOW,
 )
 from jaxgrid.dynamics import get_cell, transition
-from jaxgrid.environment import Environment
+from jaxgrid.environment import Environment, check_action
 from jaxgrid.types import State, TimeStep
 
 DOOR_COLOURS = np.array([RED, BLUE, PURPLE, YELLOW, GREY], np.int32)  # never green (the goal)
@@ -163,7 +163,8 @@ class Scenario(Environment):
         }
 
     def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
-        """MiniGrid step + lava rule + ground-truth monitor."""
+        """MiniGrid step + lava rule + ground-truth monitor (actions as in ``Environment.step``)."""
+        check_action(action)
         c = state.extras.constraint
         new, reward, terminated, truncated = transition(state, action, self.max_steps)
         entered = jnp.any(new.agent_pos != state.agent_pos)
@@ -206,6 +207,12 @@ def _vertical_wall(grid, xs, x):
 class TwoRooms(Scenario):
     """Two rooms, one wall with two closed doors of distinct colours (optionally one lava cell)."""
 
+    def min_size(self):
+        if self.has_lava:
+            # Rooms two columns wide: one lava cell can then never cut the agent off a door.
+            return 7, 4, "two rooms at least two columns wide (lava) and two door rows"
+        return 5, 4, "two rooms at least one column wide and two door rows"
+
     def layout(self, u):
         w, h = self.width, self.height
         xs, ys = G.coords(w, h)
@@ -242,6 +249,11 @@ class TwoRooms(Scenario):
 
 class ThreeRoomsKey(Scenario):
     """Key + locked door to room 2; room 2 -> 3 through a closed door or a bottom-row gap."""
+
+    def min_size(self):
+        # Walls at width // 3 and 2 * width // 3 leave every room a column from width 7; the
+        # wall-2 door's row (1 .. height - 3) must differ from the gap's (height - 2).
+        return 7, 4, "three rooms at least one column wide, a door row above the gap row"
 
     def layout(self, u):
         w, h = self.width, self.height

@@ -27,6 +27,17 @@ class Empty(Environment):
 
     random_start: bool = struct.field(pytree_node=False, default=False)
 
+    def __post_init__(self):
+        super().__post_init__()
+        if self.width == 3 and self.height == 3:
+            raise ValueError(
+                "Empty.width and Empty.height cannot both be 3: the one interior cell cannot "
+                "hold both the agent and the goal (one of them must be at least 4)"
+            )
+
+    def min_size(self):
+        return 3, 3, "walls around an interior that holds the agent and the goal"
+
     def generate(self, key: jax.Array) -> State:
         u = jax.random.uniform(key, (2,))
         grid = jnp.asarray(G.room(self.width, self.height))
@@ -41,6 +52,11 @@ class Empty(Environment):
 
 class DoorKey(Environment):
     """``DoorKeyEnv``: a locked yellow door in a random wall, its key on the agent's side."""
+
+    def min_size(self):
+        # Wall, the agent's column, the door's wall, the goal's column, wall; the agent's
+        # column holds agent and key, and the door's row is drawn from 1 .. height - 3.
+        return 5, 4, "room for the agent and key, the door wall and the goal"
 
     def generate(self, key: jax.Array) -> State:
         u = jax.random.uniform(key, (5,))  # one draw for all: random bits dominate reset cost
@@ -64,6 +80,10 @@ class DoorKey(Environment):
 
 class LavaGap(Environment):
     """``LavaGapEnv``: a vertical lava strip with a one-cell gap; agent at (1, 1) facing right."""
+
+    def min_size(self):
+        # The strip's column is drawn from 2 .. width - 3: between the agent and the goal.
+        return 5, 3, "the agent's column, the lava strip and the goal's column inside the walls"
 
     def generate(self, key: jax.Array) -> State:
         u = jax.random.uniform(key, (2,))

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxgrid.constants import DOOR, EMPTY, FLOOR, GOAL, LAVA, OBJECT_NAMES, OPEN
 from jaxgrid.environment import Environment
 from jaxgrid.types import State
 
@@ -16,7 +17,8 @@ class FixedLevel(Environment):
 
     The layout is stored as static bytes so the environment stays hashable; build one with
     :func:`jaxgrid.ascii.from_ascii` or :func:`jaxgrid.compat.from_minigrid` rather than by hand.
-    ``agent_dir=-1`` draws a random direction at each reset.
+    ``agent_dir=-1`` draws a random direction at each reset. The agent must start inside the
+    grid on a cell it can stand on (empty, floor, goal, lava or an open door).
     """
 
     layout: bytes = struct.field(pytree_node=False, default=b"")
@@ -31,6 +33,22 @@ class FixedLevel(Environment):
                 f"FixedLevel.layout holds {len(self.layout)} bytes, expected width*height*3 = "
                 f"{self.width * self.height * 3}"
             )
+        x, y = self.agent_start
+        if not (0 <= x < self.width and 0 <= y < self.height):
+            raise ValueError(
+                f"FixedLevel.agent_start {self.agent_start} is outside the "
+                f"{self.width}x{self.height} grid"
+            )
+        i = (x * self.height + y) * 3
+        kind, state = self.layout[i], self.layout[i + 2]
+        if kind not in (EMPTY, FLOOR, GOAL, LAVA) and not (kind == DOOR and state == OPEN):
+            what = OBJECT_NAMES[kind] if kind < len(OBJECT_NAMES) else f"object {kind}"
+            raise ValueError(
+                f"FixedLevel.agent_start {self.agent_start} is on a {what}; the agent stands on "
+                "an empty cell, floor, goal, lava or an open door"
+            )
+        if self.agent_dir not in (-1, 0, 1, 2, 3):
+            raise ValueError(f"FixedLevel.agent_dir must be 0..3 or -1, got {self.agent_dir!r}")
 
     @property
     def grid(self) -> np.ndarray:
