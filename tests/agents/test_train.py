@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
-from helpers.agents_cases import SEEDS, TINY, fast_jit, keys_of, leaves
+from helpers.agents_cases import FAST, SEEDS, TINY, fast_jit, keys_of, leaves
 
 from agents.config import PPOConfig
 from agents.train import make_learner, make_train
@@ -114,64 +114,91 @@ ANNEALED = PPOConfig(
     num_envs=8, num_steps=8, total_timesteps=183 * 64 + 17, update_epochs=2, num_minibatches=2,
     eval_every=10, novelty_bonus=0.3, penalty=0.7, penalty_start=0.9, penalty_warmup=0.1,
 )  # fmt: skip
+# What a training run compiles with (the suite's default is cheaper, see tests/conftest.py).
+OPTIMISED = {"xla_backend_optimization_level": 3}
 
 
-def test_every_schedule_ends_on_the_last_update_run():
-    """The penalty ramp, the novelty anneal and the learning rate all span the updates
-    actually run (whole chunks), not ``total_timesteps // batch_size``.
+def optimizer_steps(learner, steps: int, compiler_options=FAST):
+    """The change of one parameter at each of ``steps`` steps of ``learner.optimizer``, driven
+    with the same small gradient every step, and the optimizer's final state.
 
-    The learning rate is read off the real optimizer (``learner.optimizer``): driven with the
-    same small gradient at every step, Adam's direction is the same at every step, so each
-    step's change is the scheduled learning rate times one constant. ``Learner.update``
-    takes ``update_epochs * num_minibatches`` optimizer steps
-    (:func:`test_learner_takes_one_optimizer_step_per_minibatch`), so optimizer step ``k``
-    belongs to update ``k // (update_epochs * num_minibatches)``.
+    Adam's direction is then the same at every step, so each change is the scheduled
+    learning rate times one negative constant.
     """
-    c = ANNEALED
-    assert c.total_timesteps // c.batch_size == 183
-    assert c.num_updates == 180 == c.num_chunks * c.eval_every
-    learner = make_learner(c)
-    last = c.num_updates - 1
-    # Novelty: linear to 0, the last update pays 1/num_updates of the bonus, and 0 after it.
-    # (float32's 1 - 179/180 cancels: a few 1e-6 of relative error.)
-    novelty = jax.jit(learner.novelty_at)
-    assert float(novelty(jnp.int32(0))) == np.float32(c.novelty_bonus)
-    np.testing.assert_allclose(novelty(jnp.int32(last)), c.novelty_bonus / c.num_updates,
-                               rtol=1e-5)  # fmt: skip
-    assert float(novelty(jnp.int32(c.num_updates))) == 0.0
-    # Penalty: off for the first 90% of the updates, a ramp over the last 10% that reaches
-    # the full penalty on the last update, not after it.
-    ramp = np.asarray(jax.jit(jax.vmap(learner.penalty_at))(jnp.arange(c.num_updates)))
-    start = int(c.penalty_start * c.num_updates)
-    assert np.all(ramp[:start] == 0.0) and np.all(np.diff(ramp[start:]) > 0)
-    assert ramp[last] == np.float32(c.penalty) and ramp[last - 1] < np.float32(c.penalty)
-
-    per_update = c.update_epochs * c.num_minibatches
-    steps = c.num_updates * per_update
     params = {"w": np.zeros(3, np.float32)}
     grads = {"w": np.full(3, 0.01, np.float32)}  # global norm far below max_grad_norm
 
-    @fast_jit
     def drive(params):
         def step(carry, _):
             params, state = carry
             updates, state = learner.optimizer.update(grads, state, params)
             return (optax.apply_updates(params, updates), state), updates["w"][0]
 
-        (_, state), sizes = jax.lax.scan(
-            step, (params, learner.optimizer.init(params)), None, steps + 1
-        )
-        return state, sizes
+        init = (params, learner.optimizer.init(params))
+        (_, state), sizes = jax.lax.scan(step, init, None, steps)
+        return sizes, state
 
-    state, sizes = jax.device_get(drive(params))
+    return jax.device_get(jax.jit(drive, compiler_options=compiler_options)(params))
+
+
+def test_every_schedule_ends_on_the_last_update_run():
+    """The penalty ramp, the novelty anneal and the learning rate all span the updates
+    actually run (whole chunks), not ``total_timesteps // batch_size``.
+
+    The learning rate is read off the real optimizer (``learner.optimizer``, see
+    :func:`optimizer_steps`). ``Learner.update`` takes ``update_epochs * num_minibatches``
+    optimizer steps (:func:`test_learner_takes_one_optimizer_step_per_minibatch`), so
+    optimizer step ``k`` belongs to update ``k // (update_epochs * num_minibatches)``.
+    """
+    c = ANNEALED
+    assert c.total_timesteps // c.batch_size == 183
+    assert c.num_updates == 180 == c.num_chunks * c.eval_every
+    learner = make_learner(c)
+    last = c.num_updates - 1
+    # Novelty: linear to 0; the last update pays 1/num_updates of the bonus. (float32's
+    # 1 - 179/180 cancels: a few 1e-6 of relative error.)
+    novelty = fast_jit(learner.novelty_at)
+    assert float(novelty(jnp.int32(0))) == np.float32(c.novelty_bonus)
+    np.testing.assert_allclose(novelty(jnp.int32(last)), c.novelty_bonus / c.num_updates,
+                               rtol=1e-5)  # fmt: skip
+    # Penalty: off for the first 90% of the updates, a ramp over the last 10% that reaches
+    # the full penalty on the last update, not after it.
+    ramp = np.asarray(fast_jit(jax.vmap(learner.penalty_at))(jnp.arange(c.num_updates)))
+    start = int(c.penalty_start * c.num_updates)
+    assert np.all(ramp[:start] == 0.0) and np.all(np.diff(ramp[start:]) > 0)
+    assert ramp[last] == np.float32(c.penalty) and ramp[last - 1] < np.float32(c.penalty)
+    # Learning rate: linear from lr, 1/num_updates of it on the last update's last step.
+    per_update = c.update_epochs * c.num_minibatches
+    steps = c.num_updates * per_update
+    sizes, state = optimizer_steps(learner, steps)
     multiplier = sizes / sizes[0]
-    expected = 1.0 - (np.arange(steps + 1) // per_update) / c.num_updates
+    expected = 1.0 - (np.arange(steps) // per_update) / c.num_updates
     # Neighbouring updates' multipliers differ by 1/180 of the first, at least 0.5% of
     # either; float32's 1 - 179/180 and Adam's rounding stay near 1e-5.
     np.testing.assert_allclose(multiplier, expected, rtol=1e-4, atol=0)
-    assert sizes[steps - 1] < 0 and sizes[steps] == 0.0  # last step of the last update, after
+    assert sizes[-1] < 0
     counts = optax.tree_utils.tree_get_all_with_path(state, "count")
-    assert counts and all(int(n) == steps + 1 for _, n in counts)
+    assert counts and all(int(n) == steps for _, n in counts)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="agents.train computes 1 - update / num_updates; compiled with optimisations the "
+    "division is a multiplication by 1/num_updates, and the novelty bonus after the last "
+    "update is -7e-9, the learning rate's +2e-11 (a step against the gradient), not 0",
+)
+def test_anneals_are_exactly_zero_after_the_last_update():
+    """After the last update (update ``num_updates``, optimizer step ``num_updates *
+    update_epochs * num_minibatches``) the novelty bonus and the learning rate are 0, as a
+    training run compiles them."""
+    c = ANNEALED
+    learner = make_learner(c)
+    novelty = jax.jit(learner.novelty_at, compiler_options=OPTIMISED)
+    steps = c.num_updates * c.update_epochs * c.num_minibatches
+    sizes, _ = optimizer_steps(learner, steps + 1, compiler_options=OPTIMISED)
+    assert sizes[steps - 1] < 0
+    assert float(novelty(jnp.int32(c.num_updates))) == 0.0
+    assert sizes[steps] == 0.0
 
 
 def test_learner_takes_one_optimizer_step_per_minibatch(lagrangian_train):
