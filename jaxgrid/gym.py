@@ -70,6 +70,34 @@ def _info(info: dict) -> dict:
     return {k: v[()] if v.ndim == 0 else v for k, v in _to_numpy(info).items()}
 
 
+def _check_action(space, action, *, batch: bool):
+    """``action`` as numpy if it is a member of ``space``, else ``ValueError`` naming both.
+
+    JAX arrays are read as numpy first; everything else must already be a member, as
+    gymnasium's own environments require (``Discrete(7)`` rejects ``7``, ``-1``, ``2.5``, ``"2"``).
+    """
+    if isinstance(action, jax.Array):
+        action = np.asarray(action)
+    if not space.contains(action):
+        what = "actions" if batch else "action"
+        raise ValueError(f"{what} {action!r} ({type(action).__name__}) is not in {space}")
+    return np.asarray(action)
+
+
+def _warn_no_render_mode(env) -> None:
+    """gymnasium's own warning for ``render()`` without a ``render_mode``, with our example."""
+    if env.spec is not None:
+        example = f'gym.make("{env.spec.id}", render_mode="rgb_array")'
+    elif env.env_id is not None:
+        example = f'{type(env).__name__}("{env.env_id}", render_mode="rgb_array")'
+    else:
+        example = f'{type(env).__name__}(env=..., render_mode="rgb_array")'
+    gymnasium.logger.warn(
+        "You are calling render method without specifying any render mode. "
+        f"You can specify the render_mode at initialization, e.g. {example}"
+    )
+
+
 def _single_obs(obs: dict) -> dict:
     out = _to_numpy(obs)
     out["direction"] = int(out["direction"])  # a Discrete sample is a Python/numpy int
@@ -143,6 +171,7 @@ class JaxGridEnv(gymnasium.Env):
 
     def step(self, action):
         """One step; returns ``(observation, reward, terminated, truncated, info)``."""
+        action = _check_action(self.action_space, action, batch=False)
         if self.state is None:
             raise RuntimeError("call reset() before step()")
         self.state, ts = _step(self.jax_env, self.state, jnp.asarray(action, jnp.int32))
@@ -155,8 +184,15 @@ class JaxGridEnv(gymnasium.Env):
         )
 
     def render(self):
-        """The current state as an RGB array (uint8 ``(H*ts, W*ts, 3)``) or text."""
-        if self.render_mode is None or self.state is None:
+        """The current state as an RGB array (uint8 ``(H*ts, W*ts, 3)``) or text.
+
+        Without a ``render_mode`` it warns (as gymnasium's environments do) and returns ``None``;
+        before the first ``reset`` it returns ``None``.
+        """
+        if self.render_mode is None:
+            _warn_no_render_mode(self)
+            return None
+        if self.state is None:
             return None
         if self.render_mode == "ansi":
             return render_ansi(self.state)
@@ -255,10 +291,14 @@ class JaxGridVectorEnv(VectorEnv):
         return _to_numpy(ts.observation), self._batch_info(info)
 
     def step(self, actions):
-        """Step every sub-environment with ``actions`` (int ``(num_envs,)``), auto-resetting."""
+        """Step every sub-environment with ``actions`` (int ``(num_envs,)``), auto-resetting.
+
+        ``actions`` must be a member of ``action_space`` (``ValueError`` otherwise).
+        """
+        actions = _check_action(self.action_space, actions, batch=True)
         if self.states is None:
             raise RuntimeError("call reset() before step()")
-        actions = jnp.asarray(np.asarray(actions), jnp.int32).reshape(self.num_envs)
+        actions = jnp.asarray(actions, jnp.int32)
         self.states, ts = _vstep(self.jax_env, self.states, actions)
         ts = _to_numpy(ts)
         info = dict(ts.info)
@@ -283,8 +323,15 @@ class JaxGridVectorEnv(VectorEnv):
         return out
 
     def render(self):
-        """A tuple of per-env frames (``rgb_array``) or strings (``ansi``)."""
-        if self.render_mode is None or self.states is None:
+        """A tuple of per-env frames (``rgb_array``) or strings (``ansi``).
+
+        Without a ``render_mode`` it warns (as gymnasium's environments do) and returns ``None``;
+        before the first ``reset`` it returns ``None``.
+        """
+        if self.render_mode is None:
+            _warn_no_render_mode(self)
+            return None
+        if self.states is None:
             return None
         if self.render_mode == "ansi":
             return tuple(
