@@ -26,7 +26,9 @@ def _check_object(obj, where: str) -> None:
         )
 
 
-def from_minigrid(mg_env, key: jax.Array | None = None) -> tuple[FixedLevel, State, TimeStep]:
+def from_minigrid(
+    mg_env, key: jax.Array | None = None, *, base_step: bool = False
+) -> tuple[FixedLevel, State, TimeStep]:
     """Convert a *reset* Farama MiniGrid env into ``(env, state, timestep)``.
 
     Takes the grid, agent pose, carried object, step count, ``max_steps``, view size and
@@ -34,8 +36,28 @@ def from_minigrid(mg_env, key: jax.Array | None = None) -> tuple[FixedLevel, Sta
     returned ``state`` continues the MiniGrid episode where it stands. ``mg_env`` may be wrapped;
     its ``unwrapped`` is read. Unsupported objects and boxes with contents raise ``ValueError``
     naming the object and its cell.
+
+    The converted env steps with ``MiniGridEnv.step``'s rules. A level whose class overrides
+    ``step`` (Unlock ends on opening the door, DynamicObstacles moves its balls, Memory,
+    KeyCorridor, RedBlueDoors, ...) has rules of its own that are not reproduced, so it raises
+    ``ValueError`` naming the class, unless ``base_step=True`` asks for its layout under
+    ``MiniGridEnv.step``'s rules alone. An env that is not a MiniGrid env raises too.
     """
+    from minigrid.minigrid_env import MiniGridEnv  # minigrid is needed here only
+
     env = getattr(mg_env, "unwrapped", mg_env)
+    if not isinstance(env, MiniGridEnv):
+        raise ValueError(
+            f"from_minigrid needs a MiniGrid env (a minigrid.minigrid_env.MiniGridEnv, maybe "
+            f"wrapped); got {type(env).__name__}, which is not a MiniGrid env"
+        )
+    cls = type(env)
+    if cls.step is not MiniGridEnv.step and not base_step:
+        raise ValueError(
+            f"{cls.__name__} overrides MiniGridEnv.step: its own step rules are not reproduced "
+            "by the converted env (it steps with MiniGridEnv.step's rules only); pass "
+            "base_step=True to convert its layout under those rules anyway"
+        )
     if getattr(env, "grid", None) is None or getattr(env, "agent_pos", None) is None:
         raise ValueError("from_minigrid needs a MiniGrid env that has been reset")
     for i in range(env.grid.width):
