@@ -74,7 +74,7 @@ class RunLock:
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
         except OSError as e:
-            raise ValueError(f"{self.directory}: cannot create ({e.strerror or e})") from None
+            raise ValueError(f"{self.directory}: not writable ({e.strerror or e})") from None
         me = {"pid": os.getpid(), "host": socket.gethostname(), "what": self.what}
         for _ in range(3):  # a stale lock is removed, then created again
             try:
