@@ -1,0 +1,248 @@
+"""``agents.rollout`` through ``Learner.rollout``: the rollout replays the env; the ring
+buffer of checker embeddings equals :func:`checker.reward.violation_prob` on raw frames; the
+checker and shaped rewards; the novelty bonus; the truncation bootstrap.
+
+Each test steps a learner whose configuration has ``num_steps=1``: chaining its one-step
+``Learner.rollout`` exposes the environment carry after every step, which the reference
+replays need, while the step itself is the learner's own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers.agents_cases import CHECKER_CONFIG, TINY, fast_jit
+from jax import lax
+
+import checker.reward as creward
+from agents import rollout
+from agents.networks import ActorCritic
+from agents.train import make_learner
+from jaxgrid.wrappers import AutoReset, masked_map
+
+ROLL_STEPS = 10
+SHORT = (("max_steps", 4),)  # episodes truncate every 4 steps: several auto-resets
+ONE_STEP = dict(num_steps=1)
+
+
+def step_by_step(learner, runner, steps=ROLL_STEPS):
+    """``steps`` chained one-step rollouts from ``runner`` (``num_steps == 1``): the
+    transitions (T, E) and the environment carry after each step."""
+    assert learner.config.num_steps == 1
+
+    @fast_jit
+    def go(runner):
+        lang = learner.lang_table(runner.params)
+
+        def step(env, key):
+            env, transition, _ = learner.rollout(runner.replace(env=env), key, lang)
+            return env, (jax.tree.map(lambda x: x[0], transition), env)
+
+        _, out = lax.scan(step, runner.env, jax.random.split(runner.key, steps))
+        return out
+
+    return jax.device_get(go(runner))
+
+
+def make_reference(env, network, window):
+    """Replays the learner's actions with ``vmap(AutoReset(env))`` and a raw frame buffer.
+
+    Per step: the env reward, violation, termination flags, the raw window that ends at the
+    step's observation (the finished episode's last one where the step ended it), the
+    checker's :func:`checker.reward.violation_prob` on it with that episode's tokens, the
+    critic's value of the final observation (sentence features from the tokens, not the
+    learner's table) and the raw buffer after :func:`checker.reward.push` of the returned
+    observation (cleared on auto-reset).
+    """
+    auto = AutoReset(env)
+
+    @fast_jit
+    def replay(params, chk, carry0, actions):
+        n = carry0.obs["direction"].shape[0]
+        buf = creward.push(
+            creward.init_buffer(n, window, env.view_size), carry0.obs["image"], jnp.ones(n, bool)
+        )
+
+        def step(carry, action):
+            state, obs, buf = carry
+            state, ts = jax.vmap(auto.step)(state, action)
+            final = ts.info["final_observation"]
+            done = ts.terminated | ts.truncated
+            tokens = obs["constraint"]
+            window_buf = creward.push(buf, final["image"], jnp.zeros(n, bool))
+            prob = creward.violation_prob(chk, window_buf, tokens)
+            lang = network.apply(params, tokens, method=ActorCritic.sentence_features)
+            _, v_final, _ = network.apply(params, final["image"], final["direction"], lang)
+            buf = creward.push(buf, ts.observation["image"], done)
+            out = dict(
+                reward=ts.reward, violation=ts.info["violation"], terminated=ts.terminated,
+                truncated=ts.truncated, prob=prob, v_final=v_final, buf=buf,
+                obs_image=ts.observation["image"], final_image=final["image"],
+            )  # fmt: skip
+            return (state, ts.observation, buf), out
+
+        _, out = lax.scan(step, (carry0.state, carry0.obs, buf), actions)
+        return out
+
+    return replay
+
+
+@pytest.fixture(scope="module")
+def rollouts(tiny_checker):
+    """Checker-mode and shaped-mode learners stepped from one initial state, and a replay."""
+    checker_cfg = dataclasses.replace(
+        TINY, env_kwargs=SHORT, reward_mode="checker", penalty=0.7, gamma=0.9, **ONE_STEP
+    )
+    shaped_cfg = dataclasses.replace(
+        TINY, env_kwargs=SHORT, reward_mode="shaped", penalty=0.7, **ONE_STEP
+    )
+    checker_learner = make_learner(checker_cfg, tiny_checker)
+    shaped_learner = make_learner(shaped_cfg)
+    runner0 = fast_jit(checker_learner.init)(jax.random.PRNGKey(3))
+    replay = make_reference(checker_cfg.make_env(), checker_learner.network, CHECKER_CONFIG.window)
+    out = {}
+    for name, learner in (("checker", checker_learner), ("shaped", shaped_learner)):
+        transitions, carries = step_by_step(learner, runner0)
+        ref = jax.device_get(replay(runner0.params, tiny_checker, runner0.env, transitions.action))
+        out[name] = (learner, transitions, carries, ref)
+    return runner0, out
+
+
+def test_rollout_replays_the_env(rollouts):
+    _, out = rollouts
+    for name, (_, tr, carries, ref) in out.items():
+        np.testing.assert_array_equal(carries.obs["image"], ref["obs_image"], err_msg=name)
+        np.testing.assert_array_equal(tr.done, ref["terminated"] | ref["truncated"])
+        # The scenario under test happens: auto-resets on truncation, within the rollout.
+        assert ref["truncated"].sum() >= 8 and not ref["terminated"].all()
+
+
+def test_checker_embedding_ring_buffer_matches_raw_frames(rollouts, tiny_checker):
+    """The learner's buffer of embeddings and probabilities equal the raw-frame pipeline."""
+    runner0, out = rollouts
+    learner, tr, carries, ref = out["checker"]
+    # Frames carried by the learner: embeddings of the last n-1 raw frames, across resets.
+    embed = fast_jit(tiny_checker.embed_states)
+    np.testing.assert_allclose(carries.frames, embed(ref["buf"][:, :, 1:]), atol=1e-5)
+    # Probabilities from the learner's embedding window vs violation_prob on raw frames.
+    frames_before = np.concatenate([runner0.env.frames[None], carries.frames[:-1]])
+    sentence_before = np.concatenate([runner0.env.sentence[None], carries.sentence[:-1]])
+    tokens = learner.table[:, : learner.words]
+    prob = fast_jit(jax.vmap(functools.partial(rollout.checker_prob, tiny_checker, tokens)))(
+        frames_before, embed(ref["final_image"]), sentence_before
+    )
+    np.testing.assert_allclose(prob, ref["prob"], atol=1e-5)
+    assert np.ptp(ref["prob"]) > 1e-3  # a random checker still gives varied probabilities
+
+
+def test_checker_embeds_only_the_masked_rows_with_the_same_bits(tiny_checker):
+    """``masked_map`` of the embedding (the first frames of new episodes) equals embedding
+    every row and selecting, bit for bit: no row, a few rows, more rows than one chunk, and
+    under vmap."""
+    embed = functools.partial(rollout.embed, tiny_checker)
+    rng = np.random.default_rng(0)
+    images = jnp.asarray(rng.integers(0, 11, (3, 40, 5, 5, 3)), jnp.uint8)
+    other = jnp.asarray(rng.normal(size=(3, 40, CHECKER_CONFIG.state_dim)), jnp.float32)
+    masks = np.zeros((3, 40), bool)
+    masks[1, [3, 17, 38]] = True
+    masks[2, rng.permutation(40)[:37]] = True  # three chunks of 16
+    dense = fast_jit(lambda m, i, o: jnp.where(m[:, None], embed(i), o))
+    sparse = fast_jit(functools.partial(masked_map, fn=embed))
+    for m, i, o in zip(masks, images, other, strict=True):
+        np.testing.assert_array_equal(sparse(m, inputs=i, other=o), dense(m, i, o))
+    batched = fast_jit(jax.vmap(lambda m, i, o: masked_map(m, embed, i, o)))(
+        masks, images, other
+    )
+    np.testing.assert_array_equal(batched, jax.vmap(dense)(masks, images, other))
+
+
+def test_checker_and_shaped_rewards(rollouts):
+    _, out = rollouts
+    for name, (learner, tr, _, ref) in out.items():
+        c = learner.config
+        bootstrap = c.gamma * (ref["truncated"] & ~ref["terminated"]) * ref["v_final"]
+        if name == "checker":
+            prob = ref["prob"]
+            clear = np.abs(prob - c.checker_threshold) > 1e-4  # no ties at the threshold
+            assert clear.mean() > 0.9
+            alarm = (prob > c.checker_threshold).astype(np.float32)
+            expected = ref["reward"] - c.penalty * alarm + bootstrap
+            np.testing.assert_allclose(tr.reward[clear], expected[clear], atol=1e-5)
+        else:
+            expected = ref["reward"] - c.penalty * ref["violation"] + bootstrap
+            np.testing.assert_allclose(tr.reward, expected, atol=1e-5)
+        # Truncated steps carry gamma * V(final observation): the bootstrap is really there.
+        assert np.abs(bootstrap).max() > 1e-3
+
+
+def test_novelty_bonus_pays_first_visits_per_episode(rollouts):
+    """The bonus is the reward difference against the same rollout without it (the shaped
+    learner of ``rollouts``: same params and keys, so the same actions), and equals a host
+    replay of episodic first visits."""
+    runner, out = rollouts
+    plain, tr0, _, _ = out["shaped"]
+    bonus = make_learner(dataclasses.replace(plain.config, novelty_bonus=0.5))
+    tr1, carry1 = step_by_step(bonus, fast_jit(bonus.init)(jax.random.PRNGKey(3)))
+    np.testing.assert_array_equal(tr0.action, tr1.action)
+    got = tr1.reward - tr0.reward
+
+    def visit(state, t, e):
+        x, y = state.agent_pos[t, e] if t is not None else state.agent_pos[e]
+        carrying = state.carrying[t, e, 0] if t is not None else state.carrying[e, 0]
+        return int(x), int(y), bool(carrying != 1)
+
+    start = jax.device_get(runner.env.state)
+    expected = np.zeros_like(got)
+    for e in range(got.shape[1]):
+        seen = {visit(start, None, e)}
+        for t in range(got.shape[0]):
+            cell = visit(carry1.state, t, e)
+            if tr1.done[t, e]:
+                seen = {cell}  # the returned state starts the next episode
+                continue
+            expected[t, e] = 0.5 * (cell not in seen)
+            seen.add(cell)
+    np.testing.assert_allclose(got, expected, atol=1e-6)
+    assert 0 < (expected > 0).mean() < 1  # both first visits and revisits happen
+    assert tr1.done.any()  # and episodes restart within the rollout
+
+
+def test_terminal_step_on_the_time_limit_is_not_bootstrapped():
+    """LavaGap with max_steps=1: every step truncates; stepping into lava also terminates."""
+    config = dataclasses.replace(
+        TINY, env_id="MiniGrid-LavaGapS5-v0", env_kwargs=(("max_steps", 1),), num_envs=16,
+        **ONE_STEP,
+    )  # fmt: skip
+    learner = make_learner(config)
+    runner = fast_jit(learner.init)(jax.random.PRNGKey(1))
+    tr, carries = step_by_step(learner, runner, steps=8)
+
+    @fast_jit
+    def values_of_final(runner, actions):
+        auto = AutoReset(config.make_env())
+        policy = learner.policy(runner.params, learner.lang_table(runner.params))
+
+        def step(state, action):
+            state, ts = jax.vmap(auto.step)(state, action)
+            final = ts.info["final_observation"]
+            sentence = jnp.zeros(action.shape, jnp.int32)
+            _, v, _ = policy(final["image"], final["direction"], sentence)
+            return state, (ts.reward, ts.terminated, ts.truncated, v)
+
+        return lax.scan(step, runner.env.state, actions)[1]
+
+    reward, terminated, truncated, v_final = jax.device_get(values_of_final(runner, tr.action))
+    assert truncated.all() and tr.done.all()
+    both = terminated & truncated
+    assert both.sum() >= 3, "some steps should walk into the lava"
+    np.testing.assert_array_equal(tr.reward[both], reward[both])  # terminal: no bootstrap
+    only = truncated & ~terminated
+    np.testing.assert_allclose(
+        tr.reward[only], reward[only] + config.gamma * v_final[only], rtol=1e-5, atol=1e-6
+    )
+
