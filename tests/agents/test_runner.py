@@ -1,0 +1,302 @@
+"""``agents.runner.run``: compiles once, logs, checkpoints and resumes bit-identically,
+stops on a non-finite chunk with the last good checkpoint intact, checks the env batch
+against the devices before compiling, and shards over several devices with the results of
+one.
+
+Compilations are counted through ``jax.monitoring`` (``helpers.agents_cases.count_compiles``);
+``run`` keeps its compiled programs between calls with the same configuration, so the
+module's runs of ``TINY`` share one compilation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers.agents_cases import (
+    SEEDS,
+    TINY,
+    assert_counter_sees_compiles,
+    count_compiles,
+    leaves,
+)
+
+from agents.config import PPOConfig
+from agents.runner import NonFiniteError, run
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# ------------------------------------------------------------------ multi-device process
+# Slow: a fresh process with 4 host devices compiles the sharded programs. When the test is
+# selected, the process starts with the module, so that its compilation overlaps the other
+# tests; the comparison is the last test.
+MULTI_DEVICE_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import jax
+    import numpy as np
+    from agents.config import PPOConfig
+    from agents.runner import run
+
+    config = PPOConfig(**json.loads(sys.argv[1]))
+    out = sys.argv[2]
+    assert len(jax.devices()) == 4, jax.devices()
+    bad = {}
+    try:
+        run(PPOConfig(**{**json.loads(sys.argv[1]), "num_envs": 6}), progress=False)
+    except ValueError as e:
+        bad["error"] = str(e)
+    result = run(config, seeds=(0, 1), progress=False, out_dir=out + "/run")
+    env_leaf = jax.tree.leaves(result["runner"].env)[0]
+    np.savez(out + "/params.npz", *[np.asarray(x) for x in jax.tree.leaves(result["params"])])
+    json.dump({
+        "bad": bad,
+        "eval": {k: v.tolist() for k, v in result["eval"].items()},
+        "train_violations": result["train_violations"].tolist(),
+        "env_devices": len(env_leaf.sharding.device_set),
+        "env_shard_shape": list(env_leaf.sharding.shard_shape(env_leaf.shape)),
+        "env_shape": list(env_leaf.shape),
+    }, open(out + "/result.json", "w"))
+    """
+)
+MULTI_DEVICE_TEST = "test_multi_device_run_matches_single_device"
+
+
+def _config_json(config: PPOConfig) -> str:
+    return json.dumps(dataclasses.asdict(config))
+
+
+def _device_env(devices: int) -> dict:
+    """A child's environment: this process's XLA flags (so the same code generation), with
+    ``devices`` host devices."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    return {
+        **os.environ,
+        "XLA_FLAGS": f"{flags} --xla_force_host_platform_device_count={devices}".strip(),
+        "JAX_PLATFORMS": "cpu",
+        "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")]),
+    }
+
+
+@pytest.fixture(scope="module", autouse=True)
+def multi_device_process(request, tmp_path_factory):
+    if not any(item.name == MULTI_DEVICE_TEST for item in request.session.items):
+        yield None
+        return
+    out = tmp_path_factory.mktemp("multi_device")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", MULTI_DEVICE_SCRIPT, _config_json(TINY), str(out)],
+        cwd=ROOT, env=_device_env(4), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True,
+    )  # fmt: skip
+    yield proc, out
+    if proc.poll() is None:
+        proc.kill()
+        proc.communicate()
+
+
+# ---------------------------------------------------------------------- compiled once
+@pytest.fixture(scope="module")
+def runs():
+    """``run(TINY)`` for one chunk (it compiles the programs), then the whole run.
+
+    The whole run calls the chunk program on its own output for the first time in the
+    process: a retrace there (dtype, weak type or sharding drift between the chunk's input
+    and output) would compile again, which ``compiles["whole"]`` records.
+    """
+    compiles = {}
+    with count_compiles() as compiles["first"]:
+        first = run(TINY, seeds=SEEDS, progress=False, max_chunks=1)
+    with count_compiles() as compiles["whole"]:
+        whole = run(TINY, seeds=SEEDS, progress=False)
+    return first, whole, compiles
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(runs):
+    """The reference run of ``TINY`` over ``SEEDS``."""
+    return runs[1]
+
+
+def read_jsonl(path):
+    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+
+
+def test_runner_compiles_once(runs):
+    """Both chunks of a run share one compiled chunk program, and a second call of ``run``
+    with the same configuration compiles nothing."""
+    first, whole, compiles = runs
+    assert len(compiles["first"]) >= 2  # at least the init and chunk programs
+    assert compiles["whole"] == []
+    with count_compiles() as compiled:
+        again = run(TINY, seeds=SEEDS, progress=False)
+    assert compiled == []
+    assert again["records"] == whole["records"]
+    assert first["records"] == whole["records"][: len(SEEDS)]
+    assert again["wall_s"] < first["wall_s"]
+
+
+def test_run_result(uninterrupted):
+    r = uninterrupted
+    assert r["complete"]
+    np.testing.assert_array_equal(r["steps"], [2 * TINY.batch_size, 4 * TINY.batch_size])
+    for k in ("violation_rate", "mean_reward", "success_rate"):
+        assert r["eval"][k].shape == (2, TINY.num_chunks)
+    assert len(r["records"]) == 2 * TINY.num_chunks
+    assert all(np.all(np.isfinite(x)) for x in leaves(r["params"]))
+
+
+def test_checkpoint_resume_is_bit_identical(tmp_path, uninterrupted):
+    # One compilation serves every call, the resumed (restored) state included.
+    with count_compiles() as compiled:
+        first = run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False, max_chunks=1)
+        assert not first["complete"]
+        records = read_jsonl(tmp_path / "metrics.jsonl")
+        assert sorted((r["seed"], r["chunk"]) for r in records) == [(0, 0), (1, 0)]
+        assert (tmp_path / "checkpoints" / "1").is_dir()
+
+        second = run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False)
+    assert compiled == []
+    assert_counter_sees_compiles()
+    assert second["complete"]
+    records = read_jsonl(tmp_path / "metrics.jsonl")
+    assert sorted((r["seed"], r["chunk"]) for r in records) == [
+        (s, c) for s in SEEDS for c in (0, 1)
+    ]
+    assert records == second["records"]
+    for a, b in zip(leaves(second["params"]), leaves(uninterrupted["params"]), strict=True):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(leaves(second["runner"]), leaves(uninterrupted["runner"]), strict=True):
+        np.testing.assert_array_equal(a, b)
+    for k, v in uninterrupted["eval"].items():
+        np.testing.assert_array_equal(second["eval"][k], v)
+    np.testing.assert_array_equal(second["train_violations"], uninterrupted["train_violations"])
+    cum = [r["train/cum_violations"] for r in records if r["seed"] == 0]
+    assert cum == sorted(cum)
+
+    # Resuming with other seeds or another configuration is refused ...
+    with pytest.raises(ValueError, match="seeds"):
+        run(TINY, seeds=(0, 2), out_dir=tmp_path, progress=False)
+    with pytest.raises(ValueError, match="lr"):
+        run(dataclasses.replace(TINY, lr=5e-4), seeds=SEEDS, out_dir=tmp_path, progress=False)
+    # ... and resume=False really starts over (old checkpoints are not resumed later).
+    fresh = run(TINY, seeds=(3, 4), out_dir=tmp_path, progress=False, resume=False, max_chunks=1)
+    assert not fresh["complete"]
+    done = run(TINY, seeds=(3, 4), out_dir=tmp_path, progress=False)
+    assert done["complete"]
+    assert {r["seed"] for r in read_jsonl(tmp_path / "metrics.jsonl")} == {3, 4}
+    assert len(read_jsonl(tmp_path / "metrics.jsonl")) == 4
+
+
+# ------------------------------------------------------------------- non-finite guard
+# Every step raises the checker's alarm (threshold 0); the penalty is 0 for the first chunk
+# (penalty_start: half of the 4 updates), then 1e38 per step: the second chunk's returns
+# overflow float32. Six envs: one device takes an env batch that 4 devices would refuse.
+DIVERGING = dataclasses.replace(
+    TINY, num_envs=6, reward_mode="checker", checker_threshold=0.0, penalty=1e38,
+    penalty_start=0.5, penalty_warmup=0.0,
+)  # fmt: skip
+
+
+def test_non_finite_chunk_raises_and_keeps_last_checkpoint(tmp_path, tiny_checker):
+    assert DIVERGING.num_updates == 4 and DIVERGING.eval_every == 2
+    first = run(DIVERGING, tiny_checker, seeds=SEEDS, out_dir=tmp_path, progress=False,
+                max_chunks=1)  # fmt: skip
+    assert all(np.all(np.isfinite(x)) for x in leaves(first["params"]))
+    checkpoints = tmp_path / "checkpoints"
+    with pytest.raises(NonFiniteError, match=r"within updates 3-4 \(seeds \[0, 1\]\)") as e:
+        run(DIVERGING, tiny_checker, seeds=SEEDS, out_dir=tmp_path, progress=False)
+    assert str(checkpoints) in str(e.value)
+
+    # The last good checkpoint is the only one, untouched: resuming from it (and running no
+    # chunk) gives back the state after the first chunk, bit for bit, and its records.
+    assert sorted(p.name for p in checkpoints.iterdir()) == ["1"]
+    assert sorted((r["seed"], r["chunk"]) for r in read_jsonl(tmp_path / "metrics.jsonl")) == [
+        (0, 0), (1, 0)
+    ]  # fmt: skip
+    kept = run(DIVERGING, tiny_checker, seeds=SEEDS, out_dir=tmp_path, progress=False,
+               max_chunks=0)  # fmt: skip
+    assert not kept["complete"] and kept["records"] == first["records"]
+    for a, b in zip(leaves(kept["runner"]), leaves(first["runner"]), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+# ------------------------------------------------------------------------- devices
+MESH_SCRIPT = textwrap.dedent(
+    """
+    import dataclasses, json, sys
+    import jax
+    from helpers.agents_cases import assert_counter_sees_compiles, count_compiles
+    from agents.config import PPOConfig
+    from agents.runner import run
+    from agents.train import make_learner
+
+    config = PPOConfig(**json.loads(sys.argv[1]))
+    assert len(jax.local_devices()) == 4, jax.local_devices()
+    # The learner alone is fine on 4 devices; building it puts its sentence table on the
+    # device (a trivial compiled transfer), so that what is counted below is run's own.
+    make_learner(config)
+    with count_compiles() as compiled:
+        try:
+            run(config, progress=False)
+            error = None
+        except ValueError as e:
+            error = str(e)
+    assert_counter_sees_compiles()
+    print(json.dumps({"error": error, "compiled": compiled}))
+    """
+)
+
+
+def test_mesh_rejects_indivisible_env_batch(tiny_checker):
+    """With 4 devices, 6 envs cannot be split: ``run`` raises a ``ValueError`` before it
+    compiles anything. One device takes any env batch (6 envs run; nothing to split)."""
+    six = dataclasses.replace(TINY, num_envs=6)
+    proc = subprocess.run(
+        [sys.executable, "-c", MESH_SCRIPT, _config_json(six)],
+        cwd=ROOT, env=_device_env(4), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result["error"] is not None
+    assert "num_envs (6)" in result["error"]
+    assert "number of devices (4)" in result["error"]
+    assert result["compiled"] == []
+    # One device: the same env batch is accepted (DIVERGING has 6 envs; its non-finite
+    # updates come later, and no chunk runs here).
+    started = run(DIVERGING, tiny_checker, seeds=SEEDS, progress=False, max_chunks=0)
+    assert not started["complete"] and started["records"] == []
+    assert np.asarray(leaves(started["runner"].env)[0]).shape[:2] == (len(SEEDS), 6)
+
+
+# ---------------------------------------------------------------- multi-device run
+@pytest.mark.slow
+def test_multi_device_run_matches_single_device(multi_device_process, uninterrupted):
+    proc, out = multi_device_process
+    try:
+        log, _ = proc.communicate(timeout=300)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail("the 4-device run did not finish in 300 s")
+    assert proc.returncode == 0, log[-4000:]
+    result = json.loads((out / "result.json").read_text())
+    assert "divisible by the number of devices (4)" in result["bad"]["error"]
+    # The env batch really is split over the 4 devices (seed axis, then envs).
+    assert result["env_devices"] == 4
+    assert result["env_shard_shape"][1] * 4 == result["env_shape"][1] == TINY.num_envs
+    with np.load(out / "params.npz") as f:
+        sharded = [f[f"arr_{i}"] for i in range(len(f.files))]
+    single = leaves(uninterrupted["params"])
+    assert len(sharded) == len(single)
+    for a, b in zip(sharded, single, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+    for k, v in uninterrupted["eval"].items():
+        np.testing.assert_allclose(result["eval"][k], v, atol=1e-5, err_msg=k)
+    np.testing.assert_array_equal(result["train_violations"], uninterrupted["train_violations"])
