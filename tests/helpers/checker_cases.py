@@ -10,7 +10,7 @@ import numpy as np
 
 import checker
 from checker import CheckerConfig, CheckerDataset, NoisyOracleParams, noisy_oracle_policy
-from checker.train import train_checker
+from checker.train import CheckerTrainConfig, train_checker
 from jaxgrid import language
 from jaxgrid.constants import BLUE, DOOR, RED
 from jaxgrid.wrappers import AutoReset
@@ -116,6 +116,9 @@ def toy_split() -> tuple[CheckerDataset, CheckerDataset]:
 
 def train_toy(train: CheckerDataset):
     """``(TrainedChecker, history)`` of the tiny model on the toy training split."""
-    return train_checker(
-        train, TINY, seed=0, lr=3e-3, batch_size=64, epochs=25, patience=25, progress=False
-    )
+    settings = CheckerTrainConfig(
+        window=TINY.window, lookahead=1, seed=0, lr=3e-3, batch_size=64, epochs=25,
+        patience=25, test_fraction=0.0,
+    )  # fmt: skip
+    trained, history, _ = train_checker(train, settings, model=TINY, progress=False)
+    return trained, history
