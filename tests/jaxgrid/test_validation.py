@@ -13,6 +13,7 @@ raise clear errors before any compile, and every legal world is well formed and 
 
 from __future__ import annotations
 
+import functools
 import warnings
 import zlib
 
@@ -185,6 +186,13 @@ def test_fixed_level_agent_must_start_inside_on_a_standable_cell():
 ENVS = ["MiniGrid-Empty-5x5-v0", "TwoRooms-v0"]  # Environment.step and Scenario.step
 
 
+@functools.cache
+def _start(env_id):
+    """``(env, first state)``; the reset is jitted (op-by-op it compiles every small op)."""
+    env = jaxgrid.make(env_id)
+    return env, jax.jit(env.reset)(KEY0)[0]
+
+
 @pytest.mark.parametrize("env_id", ENVS)
 @pytest.mark.parametrize(
     "action, error, message",
@@ -201,8 +209,7 @@ ENVS = ["MiniGrid-Empty-5x5-v0", "TwoRooms-v0"]  # Environment.step and Scenario
     ],
 )
 def test_concrete_bad_actions_raise(env_id, action, error, message):
-    env = jaxgrid.make(env_id)
-    state, _ = env.reset(KEY0)
+    env, state = _start(env_id)
     with pytest.raises(error, match=message):
         env.step(state, action)
 
@@ -227,13 +234,13 @@ def test_concrete_bad_keys_raise(env_id, key, error, message):
 
 def test_every_integer_kind_is_an_action_and_out_of_range_acts_as_done():
     # Regression guard: the checks accept every integer scalar and keep the documented rule.
-    env = jaxgrid.make("TwoRooms-v0")
-    state, _ = env.reset(KEY0)
+    env, state = _start("TwoRooms-v0")
     done, _ = env.step(state, DONE)
     for action in (2, np.int64(2), np.array(2, np.uint8), jnp.int32(2), jnp.array(2)):
         chex.assert_trees_all_equal(env.step(state, action), env.step(state, 2))
     for action in (7, -1, 2**20, jnp.int32(9)):
         chex.assert_trees_all_equal(env.step(state, action)[0], done)
+    env = jaxgrid.make("MiniGrid-Empty-5x5-v0")  # a cheap reset to run op by op
     assert jax.random.key_data(env.reset(jax.random.key(3))[0].key).shape == (2,)
     chex.assert_trees_all_equal(env.reset(np.asarray(KEY0)), env.reset(KEY0))
 
@@ -241,18 +248,17 @@ def test_every_integer_kind_is_an_action_and_out_of_range_acts_as_done():
 def test_traced_actions_and_keys_are_untouched():
     # Regression guard: jit compiles once for every action, out-of-range acts as done under
     # jit, and vmap of reset and step works on batches.
-    env = jaxgrid.make("TwoRooms-v0")
-    state, _ = env.reset(KEY0)
-    done, _ = env.step(state, DONE)
+    env, state = _start("TwoRooms-v0")
+    done, _ = jax.jit(env.step)(state, DONE)
     step = jax.jit(chex.assert_max_traces(env.step, n=1))
     for action in (0, 2, 9, -3):
         out, _ = step(state, jnp.int32(action))
         if action in (9, -3):
             chex.assert_trees_all_equal(out, done)
-    keys = jax.random.split(KEY0, 4)
+    keys = jnp.stack([KEY0, KEY0, KEY0, KEY0])
     states, _ = jax.jit(jax.vmap(env.reset))(keys)
-    chex.assert_trees_all_equal(jax.tree.map(lambda x: x[1], states), env.reset(keys[1])[0])
-    states, ts = jax.vmap(env.step)(states, jnp.array([0, 2, 9, 5]))
+    chex.assert_trees_all_equal(jax.tree.map(lambda x: x[1], states), _start("TwoRooms-v0")[1])
+    states, ts = jax.jit(jax.vmap(env.step))(states, jnp.array([0, 2, 9, 5]))
     assert ts.reward.shape == (4,)
 
 
