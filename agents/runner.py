@@ -41,6 +41,12 @@ class NonFiniteError(FloatingPointError):
     """Training produced a non-finite loss or parameters."""
 
 
+class ResumeError(ValueError):
+    """``out_dir``'s saved state cannot be resumed: a damaged or missing file, a checkpoint
+    without its records, or a run made with another checker. Its message names the file;
+    starting over (``resume=False``) is always safe, since the run is deterministic."""
+
+
 def _mesh(num_envs: int, multi_host: bool = False) -> Mesh | None:
     devices = jax.devices() if multi_host else jax.local_devices()
     if len(devices) == 1:
@@ -141,8 +147,9 @@ def run(
         checkpoint_every: save every this many chunks of ``config.eval_every`` updates
             (0: never). Saved only after the chunk's loss and parameters are checked finite.
         resume: continue from the newest checkpoint in ``out_dir`` if there is one (a
-            ``ValueError`` if it was made with another config or other seeds); ``False``
-            deletes its checkpoints and starts over.
+            ``ValueError`` if it was made with another config or other seeds, a
+            :class:`ResumeError` if it was made with another checker or its files are
+            damaged); ``False`` deletes its checkpoints and starts over.
         final_episodes: if > 0, a final evaluation over this many fixed-seed episodes.
         max_chunks: stop after this many chunks in this call (simulates an interruption;
             the checkpoint lets a later call resume).
@@ -154,8 +161,10 @@ def run(
     Raises:
         ValueError: bad configuration (before any compilation), or a resume of ``out_dir``
             with another configuration or other seeds.
+        ResumeError: ``out_dir`` holds a checkpoint that cannot be resumed (see ``resume``).
         NonFiniteError: a chunk produced a non-finite loss or parameters; the message names
-            the update, and the last good checkpoint is left untouched.
+            the update and the last good checkpoint's directory, or says that none was
+            written yet; that checkpoint is left untouched.
     """
     seeds = [int(s) for s in seeds]
     if not seeds:
@@ -186,10 +195,10 @@ def run(
         runner = None
         if manager is not None and manager.latest_step() is not None:
             if resume:
-                _check_run_info(out, config, seeds)
-                done_chunks = int(manager.latest_step())
+                _check_run_info(out, config, seeds, checker)
+                done_chunks = _verified_step(manager, out)
                 runner = _restore(manager, done_chunks, abstract, shardings)
-                records = _read_records(out / "metrics.jsonl", done_chunks)
+                records = _read_records(out / "metrics.jsonl", done_chunks, seeds)
                 for r in records:
                     i = seeds.index(r["seed"])
                     totals[i] = max(totals[i], r["train/cum_violations"])
@@ -201,7 +210,7 @@ def run(
         if runner is None:
             runner = init(keys)
         if out is not None:
-            _write_run_info(out, config, seeds)
+            _write_run_info(out, config, seeds, checker)
             io.write_jsonl(out / "metrics.jsonl", records)
 
         bar = _progress(config.num_chunks, done_chunks, progress, desc or config.reward_mode)
@@ -215,11 +224,9 @@ def run(
             metrics, finite = _host(metrics), np.asarray(finite)
             if not finite.all():
                 bad = [seeds[i] for i in np.flatnonzero(~finite)]
-                kept = f"is kept in {out / 'checkpoints'}" if manager else "was not requested"
                 raise NonFiniteError(
                     f"non-finite loss or parameters within updates {c * config.eval_every + 1}-"
-                    f"{(c + 1) * config.eval_every} (seeds {bad}); the last good checkpoint "
-                    f"{kept}"
+                    f"{(c + 1) * config.eval_every} (seeds {bad}); {_kept(manager, out)}"
                 )
             runner = new_runner
             totals += metrics["train"]["violations"].sum(axis=1).astype(np.int64)
@@ -232,6 +239,7 @@ def run(
                 if not manager.save(c + 1, args=_save_args(runner)):
                     raise RuntimeError(f"orbax did not save checkpoint {c + 1} in {out}")
                 manager.wait_until_finished()
+                _record_digests(manager, out)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(
@@ -313,21 +321,54 @@ def _programs(config: PPOConfig, checker, multi_host: bool) -> _Programs:
     return programs
 
 
-def _run_info(config: PPOConfig, seeds: list[int]) -> dict:
+def _kept(manager, out: Path | None) -> str:
+    """Where the last good checkpoint is, only if one was really written."""
+    if manager is None:
+        return "no checkpoint was requested"
+    step = manager.latest_step()
+    if step is None:
+        return f"no checkpoint was written yet (none in {out / 'checkpoints'})"
+    return f"the last good checkpoint (chunk {step}) is kept in {out / 'checkpoints'}"
+
+
+def _checker_sha256(checker) -> str | None:
+    """Identifies the checker's parameters, so that a resume with another checker is refused."""
+    if checker is None:
+        return None
+    from flax import serialization
+
+    from jaxgrid.rundir import sha256_bytes
+
+    return sha256_bytes(serialization.to_bytes(jax.device_get(checker.params)))
+
+
+def _run_info(config: PPOConfig, seeds: list[int], checker=None) -> dict:
     fields = {k: v for k, v in dataclasses.asdict(config).items() if k != "seed"}
-    return json.loads(json.dumps({"config": fields, "seeds": seeds}, default=repr))
+    info = {"config": fields, "seeds": seeds, "checker_sha256": _checker_sha256(checker)}
+    return json.loads(json.dumps(info, default=repr))
 
 
-def _write_run_info(out: Path, config: PPOConfig, seeds: list[int]) -> None:
-    io.write_json(out / "run.json", _run_info(config, seeds))
+def _write_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None) -> None:
+    io.write_json(out / "run.json", _run_info(config, seeds, checker))
 
 
-def _check_run_info(out: Path, config: PPOConfig, seeds: list[int]) -> None:
-    """Refuse to resume a run made with another configuration or other seeds."""
+def _check_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None) -> None:
+    """Refuse to resume a run made with another configuration or other seeds (``ValueError``)
+    and a damaged, missing or other checker's ``run.json`` (:class:`ResumeError`)."""
     path = out / "run.json"
-    if not path.exists():
-        return
-    saved, now = io.read_json(path), _run_info(config, seeds)
+    start_over = "delete it to start over"
+    try:
+        saved = io.read_json(path)
+        saved["seeds"], saved["config"]
+    except FileNotFoundError:
+        raise ResumeError(f"{path}: missing, so the checkpoints in {out / 'checkpoints'} cannot "
+                          f"be matched to a configuration; {start_over}") from None  # fmt: skip
+    except (ValueError, TypeError, KeyError) as e:
+        raise ResumeError(f"{path}: damaged ({e}); {start_over}") from None
+    now = _run_info(config, seeds, checker)
+    if saved.get("checker_sha256") != now["checker_sha256"]:
+        raise ResumeError(f"{path}: the run in {out} was made with another checker; "
+                          f"{start_over}")  # fmt: skip
     if saved["seeds"] != now["seeds"]:
         raise ValueError(
             f"cannot resume {out}: it was run with seeds {saved['seeds']}, not {seeds} "
@@ -387,6 +428,54 @@ def _save_args(runner):
     return ocp.args.StandardSave(runner)
 
 
+# ``checkpoints.json`` beside ``checkpoints/``: {step: {file: sha256}} of every kept step, so
+# that a truncated or changed checkpoint file is found before orbax restores other numbers.
+DIGESTS = "checkpoints.json"
+
+
+def _step_digests(manager, step: int) -> dict[str, str]:
+    from jaxgrid.rundir import sha256_file
+
+    root = Path(manager.directory) / str(step)
+    return {p.relative_to(root).as_posix(): sha256_file(p)
+            for p in sorted(root.rglob("*")) if p.is_file()}  # fmt: skip
+
+
+def _record_digests(manager, out: Path) -> None:
+    path = out / DIGESTS
+    try:
+        saved = io.read_json(path) if path.exists() else {}
+    except ValueError:
+        saved = {}  # rewritten below from the files themselves
+    kept = {str(s): saved.get(str(s)) for s in manager.all_steps()}
+    latest = str(manager.latest_step())
+    kept[latest] = _step_digests(manager, int(latest))
+    io.write_json(path, {k: v for k, v in kept.items() if v is not None})
+
+
+def _verified_step(manager, out: Path) -> int:
+    """The newest checkpoint whose files match ``checkpoints.json``; newer ones that do not
+    (damaged, or written by a run killed before recording them) are deleted, with a message.
+    :class:`ResumeError` if none matches."""
+    import sys
+
+    path = out / DIGESTS
+    try:
+        recorded = io.read_json(path)
+    except (FileNotFoundError, ValueError) as e:
+        raise ResumeError(f"{path}: {e}; the checkpoints in {manager.directory} cannot be "
+                          "verified: delete them to start over") from None  # fmt: skip
+    for step in sorted(manager.all_steps(), reverse=True):
+        if recorded.get(str(step)) == _step_digests(manager, step):
+            return int(step)
+        print(f"{Path(manager.directory) / str(step)}: damaged or unverified checkpoint (its "
+              f"files differ from {path}); deleted, resuming from an older one",
+              file=sys.stderr)  # fmt: skip
+        manager.delete(step)
+    raise ResumeError(f"{manager.directory}: no checkpoint matches {path}; delete them to "
+                      "start over")
+
+
 def _restore(manager, step, abstract, shardings):
     import orbax.checkpoint as ocp
 
@@ -396,10 +485,29 @@ def _restore(manager, step, abstract, shardings):
         )
     else:
         target = abstract
-    return manager.restore(step, args=ocp.args.StandardRestore(target))
+    try:
+        return manager.restore(step, args=ocp.args.StandardRestore(target))
+    except Exception as e:  # orbax's and tensorstore's errors share no base class
+        raise ResumeError(f"{manager.directory}: checkpoint {step} cannot be restored "
+                          f"({type(e).__name__}: {e}); delete it to start over") from e
 
 
-def _read_records(path: Path, chunks: int) -> list[dict]:
-    if not path.exists():
-        return []
-    return [r for r in io.read_jsonl(path) if r["chunk"] < chunks]
+def _read_records(path: Path, chunks: int, seeds: list[int]) -> list[dict]:
+    """The records of the first ``chunks`` chunks of every seed; all of them must be there
+    (:class:`ResumeError` naming the file otherwise: the checkpoint outran its records)."""
+    try:
+        records = [r for r in io.read_jsonl(path) if r["chunk"] < chunks]
+    except FileNotFoundError:
+        records = []
+    except (ValueError, TypeError, KeyError) as e:
+        raise ResumeError(f"{path}: damaged ({e}); delete it and the checkpoints beside it "
+                          "to start over") from None  # fmt: skip
+    have = {(r.get("seed"), r["chunk"]) for r in records}
+    missing = [(s, c) for s in seeds for c in range(chunks) if (s, c) not in have]
+    if missing:
+        raise ResumeError(
+            f"{path}: records of {len(missing)} (seed, chunk) pairs, e.g. {missing[0]}, are "
+            f"missing (truncated or deleted) though the checkpoint holds {chunks} chunks; "
+            "delete it and the checkpoints beside it to start over"
+        )
+    return records

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import sys
 from pathlib import Path
 
 import jax
@@ -17,8 +18,10 @@ import numpy as np
 import checker as chk
 import jaxgrid
 from agents.config import PPOConfig
+from agents.runner import ResumeError
 from agents.runner import run as run_ppo
 from agents.train import make_learner
+from checker.trained import params_sha256
 from jaxgrid.io import read_json, to_jsonable, write_json, write_jsonl
 
 # Checker metrics copied into results.json (all rates).
@@ -29,6 +32,22 @@ HELDOUT_FRACTION = 4  # held-out / transfer sets are checker_samples // 4 window
 def _config_dict(cfg) -> dict:
     """``cfg`` as the JSON of ``config.json`` (nested configs as objects, tuples as lists)."""
     return to_jsonable(dataclasses.asdict(cfg))
+
+
+def _redo(phase: str, problem: Exception | str) -> None:
+    """Say that ``phase`` is redone because its artefact is damaged; only where redoing it is
+    safe: the phase is deterministic and everything after it checks what it was made from."""
+    print(f"{phase}: {problem}\n{phase}: redoing this phase", file=sys.stderr)
+
+
+def _run_ppo(config: PPOConfig, checker=None, *, phase: str, **kwargs) -> dict:
+    """:func:`agents.runner.run`, resumed; started over (with a message) when its saved state
+    is damaged, missing a part, or was made with another checker."""
+    try:
+        return run_ppo(config, checker, desc=phase, **kwargs)
+    except ResumeError as e:
+        _redo(phase, e)
+        return run_ppo(config, checker, desc=phase, resume=False, **kwargs)
 
 
 def _flat(d: dict, prefix: str = "") -> dict:
@@ -57,8 +76,12 @@ def prepare_out(cfg) -> Path:
     mine = {k: v for k, v in _flat(_config_dict(cfg)).items() if k not in ("progress", "out")}
     path = out / "config.json"
     if path.exists():
-        theirs = {k: v for k, v in _flat(read_json(path)).items()
-                  if k not in ("progress", "out")}  # fmt: skip
+        try:
+            saved = read_json(path)
+        except ValueError as e:
+            raise ValueError(f"{e}: it records the configuration of the run in --out "
+                             f"{cfg.out}; delete it to resume with these flags") from None
+        theirs = {k: v for k, v in _flat(saved).items() if k not in ("progress", "out")}
         diff = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
         if diff:
             raise ValueError(
@@ -109,8 +132,8 @@ class AgentPolicy:
 def behaviour_agent(cfg, out: Path):
     """PPO in ``none`` mode on the checker's scenario for ``behaviour_steps`` (resumable)."""
     config = behaviour_config(cfg)
-    result = run_ppo(config, seeds=(cfg.seed,), out_dir=out / "behaviour",
-                     progress=cfg.progress, desc="a. behaviour agent")  # fmt: skip
+    result = _run_ppo(config, seeds=(cfg.seed,), out_dir=out / "behaviour",
+                      progress=cfg.progress, phase="a. behaviour agent")  # fmt: skip
     params = jax.tree.map(lambda x: x[0], result["params"])
     ev = {k: float(v[0, -1]) for k, v in result["eval"].items()}
     print(f"a. behaviour agent ({config.total_timesteps} steps): success "
@@ -141,8 +164,11 @@ def _small_samples(cfg) -> int:
 def checker_data(cfg, out: Path, behaviour):
     """Balanced, auto-labelled windows of the behaviour agent's rollouts (resumable)."""
     path = out / "checker_data"
-    if path.with_suffix(".npz").exists() and path.with_suffix(".json").exists():
-        return chk.CheckerDataset.load(path)
+    if path.with_suffix(".npz").exists() or path.with_suffix(".json").exists():
+        try:
+            return chk.CheckerDataset.load(path)
+        except (ValueError, FileNotFoundError) as e:  # damaged, or one of the two files lost
+            _redo("b. checker data", e)
     key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 1)
     data = _collect(cfg, cfg.checker_env_id, behaviour, key, cfg.checker_samples)
     data.save(path)
@@ -163,8 +189,17 @@ def train_checker(cfg, out: Path, data, behaviour):
     """Train the checker as ``python -m checker`` does (:func:`checker.train_checker`, which
     splits off the test set), then measure it on test, held-out language and transfer sets."""
     ckpt, report_path = out / "checker", out / "checker.json"
-    if (ckpt / "config.json").exists() and report_path.exists():
-        return chk.load(ckpt), read_json(report_path)
+    data_sha256 = read_json(out / "checker_data.json").get("npz_sha256")
+    if ckpt.exists() or report_path.exists():
+        try:
+            trained, report = chk.load(ckpt), read_json(report_path)
+            if report.get("params_sha256") != params_sha256(ckpt):
+                raise ValueError(f"{report_path} describes other parameters than {ckpt}")
+            if report.get("data_sha256") != data_sha256:
+                raise ValueError(f"{ckpt} was trained on other data than {out}/checker_data")
+            return trained, report
+        except (ValueError, FileNotFoundError) as e:
+            _redo("c. checker", e)
     trained, history, test = chk.train_checker(data, cfg.checker_train, progress=cfg.progress)
     chk.save(trained, ckpt)
     key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 2)
@@ -172,8 +207,9 @@ def train_checker(cfg, out: Path, data, behaviour):
     details = {"test": chk.evaluate(trained, test), "heldout": chk.evaluate(trained, held)}
     report = _checker_report(details, history)
     report["transfer"] = _transfer(cfg, trained, report)
-    write_json(report_path, report)
+    report.update(params_sha256=params_sha256(ckpt), data_sha256=data_sha256)
     write_json(ckpt / "report.json", report)  # travels with the checker for --checker reuse
+    write_json(report_path, report)  # last: its presence marks the phase as done
     print(f"c. checker: test AUROC {report['test']['auroc']:.3f} F1 {report['test']['f1']:.3f}"
           f", held-out AUROC {report['heldout']['auroc']:.3f}")  # fmt: skip
     return trained, report
@@ -203,25 +239,36 @@ def _transfer(cfg, trained, report: dict) -> dict | None:
 
 def reuse_checker(cfg):
     """``--checker DIR``: load it and its report (``report.json`` of a pipeline run, or
-    ``metrics.json`` of ``python -m checker``)."""
+    ``metrics.json`` of ``python -m checker``), which must name the parameters' checksum: a
+    report of other parameters is refused."""
     path = Path(cfg.checker)
     trained = chk.load(path)
     window = cfg.checker_train.window
     if trained.config.window != window:
         raise ValueError(f"--checker {path}: window {trained.config.window} != --window "
                          f"{window}")  # fmt: skip
-    if (path / "report.json").exists():
-        report = read_json(path / "report.json")
-    elif (path / "metrics.json").exists():
-        m = read_json(path / "metrics.json")["metrics"]
+    digest = params_sha256(path)
+    found = [path / name for name in ("report.json", "metrics.json") if (path / name).exists()]
+    if not found:
+        raise ValueError(f"--checker {path}: neither report.json nor metrics.json found, so "
+                         "its test metrics are unknown")  # fmt: skip
+    mine = [p for p in found if digest is not None
+            and read_json(p).get("params_sha256") == digest]  # fmt: skip
+    if not mine:
+        raise ValueError(
+            f"--checker {path}: {' and '.join(p.name for p in found)} describe(s) other "
+            f"parameters than {path / 'params.msgpack'} (or predate checksums); retrain it "
+            f"with `python -m checker --out {path} --overwrite`"
+        )
+    if mine[0].name == "report.json":
+        report = read_json(mine[0])
+    else:
+        m = read_json(mine[0])["metrics"]
         details = {"test": m["test"]}
         if m.get("heldout_language"):
             details["heldout"] = m["heldout_language"]
         report = _checker_report(details, None)
         report.setdefault("heldout", None)
-    else:
-        raise ValueError(f"--checker {path}: neither report.json nor metrics.json found, so "
-                         "its test metrics are unknown")  # fmt: skip
     report = dict(report, transfer=_transfer(cfg, trained, dict(report)))
     write_json(Path(cfg.out) / "checker.json", dict(report, reused_from=str(path)))
     return trained, report
@@ -235,9 +282,9 @@ def train_agents(cfg, out: Path, mode: str, trained) -> dict:
     config = ppo_config(cfg, mode)
     seeds = tuple(range(cfg.seed, cfg.seed + cfg.seeds))
     checker = trained if config.uses_checker else None
-    result = run_ppo(config, checker, seeds=seeds, out_dir=out / "modes" / mode,
-                     final_episodes=cfg.final_episodes, progress=cfg.progress,
-                     desc=f"d. {mode}")  # fmt: skip
+    result = _run_ppo(config, checker, seeds=seeds, out_dir=out / "modes" / mode,
+                      final_episodes=cfg.final_episodes, progress=cfg.progress,
+                      phase=f"d. {mode}")  # fmt: skip
     result["config"] = config
     return result
 

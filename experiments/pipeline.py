@@ -17,6 +17,12 @@ e. **final evaluation** over ``final_episodes`` fixed-seed episodes per seed;
 f. **report**: ``results.json``, ``results.md``, ``curves.png``, ``episodes.gif``,
    ``metrics.jsonl`` and ``config.json``.
 
+One process writes into ``--out`` at a time (``--out/.lock``). Every file is written to a
+temporary name and renamed; parameter files carry a sha256 in their JSON sidecar. A damaged
+artefact makes its phase redo its work, with a message (each phase is deterministic, and the
+phases after it check the checksum of what they were made from), or stops the run with exit
+status 2 and a message naming the file.
+
 An :class:`ExperimentConfig` holds the experiment's own sizes, the compared agents'
 :class:`~agents.config.PPOConfig` and the checker's :class:`~checker.train.CheckerTrainConfig`;
 each validates its own fields. Sizes come in three presets, overrides of :data:`BASE`:
@@ -42,6 +48,7 @@ from agents.config import REWARD_MODES, PPOConfig
 from checker import cli
 from checker.train import CheckerTrainConfig
 from experiments import phases
+from jaxgrid import rundir
 
 
 def _modes(args: list[str]) -> tuple[str, ...]:
@@ -101,6 +108,22 @@ class ExperimentConfig:
             value, low = getattr(self, name), int(name in positive)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"{me}.{name} must be an integer >= {low}, got {value!r}")
+        if self.out is not None and not self.out:
+            raise ValueError(f"{me}.out: an output directory is required (omit the flag for "
+                             "runs/<experiment>/<date-time>)")  # fmt: skip
+        if self.out and os.path.exists(self.out) and not os.path.isdir(self.out):
+            raise ValueError(f"{me}.out {self.out}: not writable, it is a file (an output "
+                             "directory is needed)")  # fmt: skip
+        settings = self.checker_train
+        if self.checker is None and settings.training_rows(self.checker_samples) < (
+            settings.batch_size
+        ):
+            raise ValueError(
+                f"{me}.checker_samples {self.checker_samples} leaves "
+                f"{settings.training_rows(self.checker_samples)} windows to train on after "
+                f"CheckerTrainConfig.test_fraction and CheckerTrainConfig.val_fraction, fewer "
+                f"than CheckerTrainConfig.batch_size {settings.batch_size}"
+            )
         if not self.checker_train.test_fraction > 0:
             raise ValueError("CheckerTrainConfig.test_fraction must be > 0 in an experiment: "
                              "its report holds the checker's test metrics")  # fmt: skip
@@ -254,7 +277,14 @@ def default_out(experiment: str) -> str:
 
 
 def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
-    """Entry point of the scenario modules; Ctrl-C keeps finished phases for a resume."""
+    """Entry point of the scenario modules; Ctrl-C keeps finished phases for a resume.
+
+    Bad flags exit with status 2 before anything compiles. ``--out`` is locked for the whole
+    run (:func:`jaxgrid.rundir.lock`): a second process on it exits with status 2 at once,
+    naming the holder. An artefact that is damaged beyond what its phase redoes, or a
+    ``--checker`` whose report does not match it, stops the run with status 2 and a message
+    naming the file.
+    """
     cfg = parse_args(sys.argv[1:] if argv is None else argv, scenario_cfg)
     if cfg.quick:  # a smoke test is all compile time: skip LLVM's optimisations (same results)
         flag = "--xla_backend_optimization_level=0"
@@ -263,12 +293,11 @@ def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
     if cfg.out is None:
         cfg = dataclasses.replace(cfg, out=default_out(cfg.experiment))
     try:
-        phases.prepare_out(cfg)  # an unwritable or foreign --out fails here, before training
-    except ValueError as e:
+        with rundir.lock(cfg.out, f"python -m experiments.{cfg.experiment}"):
+            return run_experiment(cfg)  # an unwritable or foreign --out fails before training
+    except (ValueError, FileNotFoundError, rundir.LockHeld) as e:
         print(f"error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
-    try:
-        return run_experiment(cfg)
     except KeyboardInterrupt:
         print(f"\ninterrupted: finished phases are kept in {cfg.out}; rerun with "
               f"--out {cfg.out} to resume", file=sys.stderr)  # fmt: skip

@@ -1,0 +1,280 @@
+"""Fault injection into a run directory of the experiment pipeline.
+
+One tiny run (``--quick``, one seed, the ``checker`` mode only) is built once for the module;
+each case copies it, truncates, bit-flips or deletes one artefact, and resumes the phase that
+reads it. The phase must either redo its work, saying so on stderr and leaving artefacts that
+load again, or stop with exit status 2 and a message naming the file: never a raw traceback,
+never a silent success with other content. The phases are called in this process with the
+checker object the run was built with, so their compiled programs are reused. Two processes
+on one ``--out``: exactly one works, the other exits with status 2 within 5 seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import checker as chk
+from agents.runner import NonFiniteError
+from agents.runner import run as run_ppo
+from experiments import phases, pipeline, two_rooms
+from jaxgrid import rundir
+from jaxgrid.io import read_json, read_jsonl
+
+ARGV = ["--quick", "--no-progress", "--modes", "checker", "--seeds", "1", "--gif-episodes", "1"]
+DAMAGES = ("truncate", "flip", "delete")
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """``(cfg, out, state)`` of a finished tiny run; ``state`` holds what its phases returned."""
+    out = tmp_path_factory.mktemp("tiny") / "run"
+    cfg = pipeline.parse_args([*ARGV, "--out", str(out)], two_rooms.SCENARIO)
+    phases.prepare_out(cfg)
+    behaviour = phases.behaviour_agent(cfg, out)
+    data = phases.checker_data(cfg, out, behaviour)
+    trained, report = phases.train_checker(cfg, out, data, behaviour)
+    runs = {"checker": phases.train_agents(cfg, out, "checker", trained)}
+    phases.write_gif(cfg, out, runs, trained)
+    results = phases.assemble(cfg, out, runs, report, 1.0)
+    phases.write_outputs(cfg, out, results, runs)
+    state = dict(behaviour=behaviour, data=data, trained=trained, report=report, runs=runs,
+                 results=results, out=out)  # fmt: skip
+    return cfg, out, state
+
+
+@pytest.fixture
+def run_copy(built, tmp_path):
+    """A fresh copy of the tiny run and its configuration (``--out`` pointing at the copy)."""
+    cfg, out, state = built
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy)
+    return pipeline.parse_args([*ARGV, "--out", str(copy)], two_rooms.SCENARIO), copy, state
+
+
+def damage(path: Path, how: str) -> Path:
+    """Truncate ``path`` to half, flip one bit in its middle, or delete it; for a checkpoint
+    directory, its newest step's largest file is damaged (deleted: the whole step)."""
+    if path.is_dir():
+        step = max((p for p in path.iterdir() if p.name.isdigit()), key=lambda p: int(p.name))
+        if how == "delete":
+            shutil.rmtree(step)
+            return step
+        files = [p for p in step.rglob("*") if p.is_file()]
+        path = max(files, key=lambda p: p.stat().st_size)
+    if how == "delete":
+        path.unlink()
+    elif how == "truncate":
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    else:
+        data = bytearray(path.read_bytes())
+        # A JSON file's first byte: a flip elsewhere could change a number and stay valid
+        # JSON, which no reader can tell without a checksum (parameter files have one).
+        at = 0 if path.suffix in (".json", ".jsonl") else len(data) // 2
+        data[at] ^= 0x01
+        path.write_bytes(bytes(data))
+    return path
+
+
+def assert_redone(capsys, phase: str, name: str) -> None:
+    err = capsys.readouterr().err
+    assert f"{phase}: redoing this phase" in err, err
+    assert name in err, err
+
+
+def check_recovery(err: str, phase: str, name: str, how: str) -> None:
+    """A PPO phase resumes from the older checkpoint when the newest one is deleted (quietly)
+    or damaged (saying so); any other damage starts the phase over, saying so."""
+    if name == "checkpoints":
+        assert "redoing" not in err, err
+        if how != "delete":
+            assert "damaged or unverified checkpoint" in err and "resuming from an older" in err
+    else:
+        assert f"{phase}: redoing this phase" in err and name in err, err
+
+
+def same_tree(a, b) -> bool:
+    import jax
+
+    return all(np.array_equal(np.asarray(x), np.asarray(y))
+               for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))  # fmt: skip
+
+
+# ------------------------------------------------------------------ a. behaviour agent
+@pytest.mark.parametrize("how", DAMAGES)
+@pytest.mark.parametrize("name", ["metrics.jsonl", "run.json", "checkpoints"])
+def test_behaviour_agent_recovers_from_damage(run_copy, capsys, name, how):
+    cfg, out, state = run_copy
+    damage(out / "behaviour" / name, how)
+    _, params = phases.behaviour_agent(cfg, out)
+    check_recovery(capsys.readouterr().err, "a. behaviour agent", name, how)
+    assert same_tree(params, state["behaviour"][1])  # deterministic: the same agent again
+    records = read_jsonl(out / "behaviour" / "metrics.jsonl")
+    assert [r["chunk"] for r in records] == list(range(len(records))) and records
+
+
+# ------------------------------------------------------------------ b. checker data
+@pytest.mark.parametrize("how", DAMAGES)
+@pytest.mark.parametrize("name", ["checker_data.npz", "checker_data.json"])
+def test_checker_data_is_collected_again(run_copy, capsys, name, how):
+    cfg, out, state = run_copy
+    damage(out / name, how)
+    data = phases.checker_data(cfg, out, state["behaviour"])
+    assert_redone(capsys, "b. checker data", name if how != "delete" else "checker_data")
+    assert np.array_equal(data.labels, state["data"].labels)
+    assert np.array_equal(data.windows, state["data"].windows)
+    assert len(chk.CheckerDataset.load(out / "checker_data")) == len(state["data"])
+
+
+# ------------------------------------------------------------------ c. checker
+@pytest.mark.parametrize("how", DAMAGES)
+@pytest.mark.parametrize("name", ["checker/params.msgpack", "checker/config.json",
+                                  "checker.json"])  # fmt: skip
+def test_checker_is_trained_again(run_copy, capsys, name, how):
+    cfg, out, state = run_copy
+    damage(out / name, how)
+    trained, report = phases.train_checker(cfg, out, state["data"], state["behaviour"])
+    assert_redone(capsys, "c. checker", Path(name).name)
+    assert report["params_sha256"] == chk.trained.params_sha256(out / "checker")
+    assert read_json(out / "checker.json")["params_sha256"] == report["params_sha256"]
+    assert same_tree(chk.load(out / "checker").params, trained.params)
+
+
+def test_checker_of_other_data_is_trained_again(run_copy, capsys):
+    cfg, out, state = run_copy
+    other = state["data"].subset(np.arange(len(state["data"]) - 1))
+    other.save(out / "checker_data")  # a valid dataset, but not the one the checker saw
+    phases.train_checker(cfg, out, other, state["behaviour"])
+    assert_redone(capsys, "c. checker", "trained on other data")
+
+
+# ------------------------------------------------------------------ d. PPO per mode
+@pytest.mark.parametrize("how", DAMAGES)
+@pytest.mark.parametrize("name", ["metrics.jsonl", "run.json", "checkpoints"])
+def test_mode_recovers_from_damage(run_copy, capsys, name, how):
+    cfg, out, state = run_copy
+    damage(out / "modes" / "checker" / name, how)
+    result = phases.train_agents(cfg, out, "checker", state["trained"])
+    check_recovery(capsys.readouterr().err, "d. checker", name, how)
+    first = state["runs"]["checker"]
+    assert same_tree(result["params"], first["params"])
+    assert result["records"] == first["records"]
+    assert read_jsonl(out / "modes" / "checker" / "metrics.jsonl") == first["records"]
+
+
+def test_mode_made_with_another_checker_is_trained_again(run_copy, capsys):
+    cfg, out, state = run_copy
+    import jax
+
+    other = state["trained"].replace(
+        params=jax.tree.map(lambda x: x + 1e-3, state["trained"].params))
+    phases.train_agents(cfg, out, "checker", other)
+    assert_redone(capsys, "d. checker", "another checker")
+
+
+# ------------------------------------------------------------------ top-level files
+@pytest.mark.parametrize("how", ["truncate", "flip"])
+def test_damaged_config_json_stops_with_exit_2_naming_it(run_copy, capsys, how):
+    cfg, out, _ = run_copy
+    damage(out / "config.json", how)
+    with pytest.raises(SystemExit) as e:
+        pipeline.main(two_rooms.SCENARIO, [*ARGV, "--out", str(out)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert str(out / "config.json") in err and "delete it" in err
+    assert not (out / rundir.LOCK_FILE).exists()
+
+
+def test_deleted_config_json_is_written_again(run_copy):
+    cfg, out, _ = run_copy
+    (out / "config.json").unlink()
+    phases.prepare_out(cfg)
+    assert read_json(out / "config.json")["seeds"] == 1
+
+
+@pytest.mark.parametrize("how", DAMAGES)
+def test_report_files_are_written_again(run_copy, how):
+    cfg, out, state = run_copy
+    names = ("results.json", "results.md", "curves.png", "metrics.jsonl", "episodes.gif")
+    for name in names:
+        damage(out / name, how)
+    phases.write_gif(cfg, out, state["runs"], state["trained"])
+    phases.write_outputs(cfg, out, state["results"], state["runs"])
+    assert read_json(out / "results.json") == read_json(state["out"] / "results.json")
+    assert (out / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "episodes.gif").read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+    assert len(read_jsonl(out / "metrics.jsonl")) == len(state["runs"]["checker"]["records"])
+
+
+
+# ------------------------------------------------------------------ --checker DIR reuse
+def test_reused_checker_with_a_stale_report_is_refused(run_copy, tmp_path, capsys):
+    _, out, state = run_copy
+    ckpt = out / "checker"
+    reuse = pipeline.parse_args([*ARGV, "--out", str(tmp_path / "reuse"), "--checker",
+                                 str(ckpt)], two_rooms.SCENARIO)  # fmt: skip
+    _, report = phases.reuse_checker(reuse)  # its report matches: accepted
+    assert report["test"] == state["report"]["test"]
+    # Retrained (here: other parameters) without its report: the report no longer matches.
+    import jax
+
+    other = state["trained"].replace(params=jax.tree.map(lambda x: -x, state["trained"].params))
+    chk.save(other, ckpt)
+    with pytest.raises(SystemExit) as e:
+        pipeline.main(two_rooms.SCENARIO, [*ARGV, "--out", str(tmp_path / "r2"), "--checker",
+                                           str(ckpt)])  # fmt: skip
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "describe(s) other parameters" in err and "--overwrite" in err
+
+
+# ------------------------------------------------------------------ runner
+def test_non_finite_error_names_a_checkpoint_only_when_one_exists(built, tmp_path):
+    """A penalty of 1e38 from the second chunk on makes the value loss overflow there."""
+    cfg = built[0]
+    config = dataclasses.replace(phases.ppo_config(cfg, "shaped"), penalty=1e38,
+                                 penalty_start=0.5, penalty_warmup=0.0)  # fmt: skip
+    assert config.num_chunks == 2
+    with pytest.raises(NonFiniteError) as e:
+        run_ppo(config, seeds=(0,), out_dir=tmp_path / "a", progress=False)
+    assert f"the last good checkpoint (chunk 1) is kept in {tmp_path / 'a' / 'checkpoints'}" \
+        in str(e.value)  # fmt: skip
+    with pytest.raises(NonFiniteError) as e:
+        run_ppo(config, seeds=(0,), out_dir=tmp_path / "b", progress=False, checkpoint_every=2)
+    assert "no checkpoint was written yet" in str(e.value)
+    assert not list((tmp_path / "b" / "checkpoints").glob("[0-9]*"))
+
+
+# ------------------------------------------------------------------ one writer
+def test_two_runs_on_one_out_exactly_one_works(run_copy):
+    """A resumes the finished copy (exit 0); B, started while A holds the lock, exits 2
+    within 5 seconds naming A's pid; the lock is gone afterwards."""
+    _, out, _ = run_copy
+    cmd = [sys.executable, "-m", "experiments.two_rooms", *ARGV, "--out", str(out)]
+    a = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lock = out / rundir.LOCK_FILE
+    deadline = time.monotonic() + 120
+    while not (lock.exists() and lock.read_text()) and a.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    assert a.poll() is None, a.communicate()
+    t0 = time.monotonic()
+    b = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    wall = time.monotonic() - t0
+    a_out, a_err = a.communicate(timeout=600)
+    assert a.returncode == 0, a_err
+    assert b.returncode == 2, b.stderr
+    assert f"pid {a.pid}" in b.stderr and "Traceback" not in b.stderr
+    assert wall < 5, wall
+    assert "redoing" not in a_err and not lock.exists()
+    assert json.loads((out / "results.json").read_text())["methods"]["checker"]["seeds"] == 1
+    assert os.listdir(out)  # nothing was cleared
