@@ -278,3 +278,32 @@ def test_two_runs_on_one_out_exactly_one_works(run_copy):
     assert "redoing" not in a_err and not lock.exists()
     assert json.loads((out / "results.json").read_text())["methods"]["checker"]["seeds"] == 1
     assert os.listdir(out)  # nothing was cleared
+
+
+# ------------------------------------------------------------------ refuse before work
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--out", ""], "--out: an output directory is required"),
+        (["--penalty", "inf"], "--penalty must be finite"),
+        (["--lr", "nan"], "--lr must be finite"),
+        (["--checker-lr", "inf"], "--checker-lr must be finite"),
+        (["--checker-samples", "64"], "--checker-samples 64 leaves 44 windows to train on"),
+    ],
+)
+def test_bad_flags_exit_2_before_any_work(argv, message, tmp_path, capsys, monkeypatch):
+    import jax
+
+    events = []
+    listen = lambda name, *a, **k: events.append(name)  # noqa: E731
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    monkeypatch.chdir(tmp_path)
+    try:
+        with pytest.raises(SystemExit) as e:
+            pipeline.main(two_rooms.SCENARIO, ["--quick", "--no-progress",
+                                               "--out", str(tmp_path / "run"), *argv])
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert e.value.code == 2
+    assert message in " ".join(capsys.readouterr().err.replace("│", " ").split())
+    assert not os.listdir(tmp_path) and not [n for n in events if "compile" in n]
