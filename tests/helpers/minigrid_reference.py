@@ -252,7 +252,7 @@ def differential_run(
         mg.reset(seed=seed)
         if setup is not None:
             setup(mg, seed)
-        env, state, _ = from_minigrid(mg)
+        env, state, _ = from_minigrid(mg, base_step=base_step)
         cfg = cfg or config_env(env)
         assert config_env(env) == cfg, "levels of one id must share a configuration"
         states.append(state)

@@ -79,7 +79,7 @@ def test_full_frames_match_minigrid_get_frame(minigrid):
             mg = minigrid.make(env_id).unwrapped
         mg.reset(seed=int(rng.integers(1000)))
         for _ in range(12):
-            env, state, _ = from_minigrid(mg)
+            env, state, _ = from_minigrid(mg, base_step=True)  # only rendered
             view = (env.view_size, env.see_through_walls)  # static: one compile per level size
             for hl in (False, True):
                 ref = mg.get_frame(highlight=hl, tile_size=12)
