@@ -123,8 +123,10 @@ def test_behaviour_agent_recovers_from_damage(run_copy, capsys, name, how):
 
 
 # ------------------------------------------------------------------ b. checker data
-@pytest.mark.parametrize("how", DAMAGES)
-@pytest.mark.parametrize("name", ["checker_data.npz", "checker_data.json"])
+# Each case collects again (about 40 s here): the sidecar's JSON damage is one case, JSON
+# damage of every kind is covered by the other phases' files.
+@pytest.mark.parametrize(("name", "how"), [("checker_data.npz", how) for how in DAMAGES]
+                         + [("checker_data.json", "flip")])  # fmt: skip
 def test_checker_data_is_collected_again(run_copy, capsys, name, how):
     cfg, out, state = run_copy
     damage(out / name, how)
@@ -136,9 +138,9 @@ def test_checker_data_is_collected_again(run_copy, capsys, name, how):
 
 
 # ------------------------------------------------------------------ c. checker
-@pytest.mark.parametrize("how", DAMAGES)
-@pytest.mark.parametrize("name", ["checker/params.msgpack", "checker/config.json",
-                                  "checker.json"])  # fmt: skip
+@pytest.mark.parametrize(("name", "how"), [("checker/params.msgpack", how) for how in DAMAGES]
+                         + [("checker/config.json", "flip"), ("checker.json", "truncate"),
+                            ("checker.json", "delete")])  # fmt: skip
 def test_checker_is_trained_again(run_copy, capsys, name, how):
     cfg, out, state = run_copy
     damage(out / name, how)
