@@ -196,3 +196,12 @@ def test_lock_refuses_a_file_as_directory(tmp_path):
     (tmp_path / "f").write_text("x")
     with pytest.raises(ValueError, match="is a file"):
         rundir.lock(tmp_path / "f")
+
+
+def test_lock_is_released_on_ctrl_c(tmp_path):
+    from jaxgrid import rundir
+
+    with pytest.raises(KeyboardInterrupt):
+        with rundir.lock(tmp_path):
+            raise KeyboardInterrupt
+    assert not (tmp_path / rundir.LOCK_FILE).exists()
