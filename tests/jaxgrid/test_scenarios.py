@@ -1,16 +1,15 @@
 """Tests of the paper's scenarios: ground-truth monitor, constraint observation, layouts, the
-constraint sampler (splits, absent colours), config errors, and the BFS oracle (every episode
-solvable without a violation; how often the unconstrained route would violate)."""
+constraint sampler (splits, absent colours) and config errors (the BFS oracle's tests are in
+``test_oracle.py``)."""
 
 from __future__ import annotations
-
-import functools
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers.scenario_resets import SCENARIOS, resets
+from helpers.xla import CHEAP
 
 import jaxgrid
 from jaxgrid import language
@@ -35,32 +34,13 @@ from jaxgrid.constants import (
     TOGGLE,
     WALL,
 )
-from jaxgrid.oracle import distance_field, oracle_action, passable_cells, rollout_oracle
-
-SCENARIOS = ("TwoRooms-v0", "TwoRoomsLava-v0", "ThreeRoomsKey-v0")
-# Episodes per scenario, for the layout checks and the oracle alike. The batch of resets is the
-# one the oracle plays (same keys), and compiling dominates the cost: 10,000 oracle episodes
-# run in about a second on 2 CPU cores once compiled.
-N = 10_000
-SEED = 42
-
+from jaxgrid.oracle import oracle_action
 
 # ---------------------------------------------------------------------------- helpers
 
 
-# ``env`` is passed as a pytree (static config + the absent_colour_prob leaf), so each
-# scenario and split compiles once whatever absent_colour_prob is.
-_batch_reset = jax.jit(lambda env, keys: jax.vmap(env.reset)(keys))
-_step = jax.jit(lambda env, state, action: env.step(state, action))
-_oracle = jax.jit(oracle_action)
-
-
-@functools.cache
-def resets(name: str, **overrides):
-    """``(states, timesteps)`` of ``N`` resets (keys split from ``SEED``) as numpy arrays."""
-    env = jaxgrid.make(name, **overrides)
-    out = _batch_reset(env, jax.random.split(jax.random.PRNGKey(SEED), N))
-    return jax.tree.map(np.asarray, out)
+_step = jax.jit(lambda env, state, action: env.step(state, action), compiler_options=CHEAP)
+_oracle = jax.jit(oracle_action, compiler_options=CHEAP)
 
 
 def _kind(states):
@@ -359,100 +339,3 @@ def test_bad_config_raises_naming_the_field(name):
     for p in (1.5, -0.1):
         with pytest.raises(ValueError, match="absent_colour_prob"):
             jaxgrid.make(name, absent_colour_prob=p)
-
-
-# ---------------------------------------------------------------------------- oracle
-
-
-@functools.cache
-def oracle_results(name: str, obey_constraint: bool = True, avoid_lava: bool = True):
-    """Oracle rollouts of the ``N`` episodes of :func:`resets` and their wall time."""
-    env = jaxgrid.make(name)
-    t0 = time.perf_counter()
-    out = rollout_oracle(
-        env, jax.random.PRNGKey(SEED), N, obey_constraint=obey_constraint, avoid_lava=avoid_lava
-    )
-    out = jax.tree.map(np.asarray, out)
-    return out, time.perf_counter() - t0
-
-
-@pytest.mark.parametrize("name", SCENARIOS)
-def test_oracle_solves_every_episode_without_violation(name):
-    r, seconds = oracle_results(name)
-    print(
-        f"\n{name}: oracle success {r['success'].mean():.4f}, episodes with a violation "
-        f"{(r['violations'] > 0).mean():.4f}, mean length {r['length'].mean():.1f} "
-        f"(max {r['length'].max()}), {N} episodes in {seconds:.1f} s (compile included)"
-    )
-    assert r["done"].all()
-    assert r["success"].all()
-    assert (r["violations"] == 0).all()
-    np.testing.assert_array_equal(r["door_colour"], resets(name)[0].extras.constraint.door_colour)
-    assert set(np.unique(r["constraint_type"])) == (
-        {1, 2, 3, 4, 5} if name == "TwoRoomsLava-v0" else {1, 2, 3}
-    )
-
-
-def test_oracle_solves_doorkey():
-    """The oracle is generic: keys and locked doors of a classic level, no constraint."""
-    r = rollout_oracle(jaxgrid.make("MiniGrid-DoorKey-8x8-v0"), jax.random.PRNGKey(0), 500)
-    assert np.asarray(r["success"]).all()
-    assert (np.asarray(r["constraint_type"]) == 0).all()
-
-
-def _forced_detour(name: str) -> np.ndarray:
-    """bool (N,): the constraint makes the agent's shortest route to the goal longer, i.e.
-    every shortest route violates it (on the layouts :func:`oracle_results` plays).
-
-    Distances in moves from the start, with locked doors treated as unlocked and the key
-    removed (every route crosses the locked door, so the key detour is the same for both);
-    lava avoided.
-    """
-    states, _ = resets(name)
-    n = N
-
-    def one(grid, agent, forbidden):
-        unlocked = grid.at[..., 2].set(jnp.where(grid[..., 2] == LOCKED, CLOSED, grid[..., 2]))
-        unlocked = jnp.where((grid[..., :1] == KEY), jnp.asarray(EMPTY_CELL), unlocked)
-        passable = passable_cells(unlocked, jnp.asarray(EMPTY_CELL), forbidden)
-        dist = distance_field(grid[..., 0] == GOAL, passable)
-        return dist[agent[0], agent[1]]
-
-    f = jax.jit(jax.vmap(one))
-    grid, agent = jnp.asarray(states.grid), jnp.asarray(states.agent_pos)
-    free = f(grid, agent, jnp.full((n,), -1, jnp.int32))
-    constrained = f(grid, agent, jnp.asarray(states.extras.constraint.door_colour))
-    free, constrained = np.asarray(free), np.asarray(constrained)
-    assert (constrained < states.grid.shape[1] * states.grid.shape[2]).all()  # solvable
-    return constrained > free
-
-
-@pytest.mark.parametrize("name", SCENARIOS)
-def test_unconstrained_shortest_route_often_violates(name):
-    """The constraint matters: the BFS oracle ignoring it violates it in a good share of
-    episodes (same layouts as the constrained run). Printed with ``pytest -s``."""
-    r, _ = oracle_results(name, obey_constraint=False)
-    v = r["violations"] > 0
-    ctype = r["constraint_type"]
-    by_type = ", ".join(f"type {t}: {v[ctype == t].mean():.3f}" for t in np.unique(ctype))
-    forced = _forced_detour(name)
-    print(
-        f"\n{name}: unconstrained oracle (doors ignored, lava avoided) violates in "
-        f"{v.mean():.3f} of {N} episodes ({by_type}); the constraint lengthens the "
-        f"shortest route (every shortest route violates) in {forced.mean():.3f}"
-    )
-    assert r["success"].all()
-    assert 0.2 < v.mean() < 0.8
-    assert forced.mean() > 0.1
-    assert not (forced & ~v).any()  # a forced detour is always a violation when ignored
-    if name == "TwoRoomsLava-v0":
-        # Lava passable too: entering lava counts only where the constraint forbids it.
-        r2, _ = oracle_results(name, obey_constraint=False, avoid_lava=False)
-        v2, lava = r2["violations"] > 0, r2["forbids_lava"]
-        print(
-            f"{name}: unconstrained oracle through lava violates in {v2.mean():.3f} of "
-            f"episodes ({v2[lava].mean():.3f} when lava is forbidden, {v2[~lava].mean():.3f} "
-            f"when not); success {r2['success'].mean():.3f}"
-        )
-        assert (r2["success"] | (v2 & lava)).all()  # failures are lava deaths
-        assert v2[lava].mean() > v[lava].mean()

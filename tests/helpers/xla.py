@@ -1,0 +1,31 @@
+"""Compile options for test-only programs (``jax.jit(..., compiler_options=...)``).
+
+The suite is dominated by XLA compile time on 2 CPU cores. Both option sets only choose how
+the same HLO becomes machine code: a program's semantics are unchanged, though floating-point
+results may differ in the last bits from another setting's.
+
+* ``CHEAP``: LLVM's optimisations off and XLA:CPU's per-op emitters instead of its fusion
+  emitters: 2-5x less compile time than the suite's default (``tests/conftest.py``) for the
+  environment programs the tests build, which run briefly. The emitter option is left out
+  where this XLA does not know it.
+* ``OPTIMISED``: full optimisation, for programs that run long (thousands of episodes, a BFS
+  per step), which then take less time in all than cheaply compiled ones.
+"""
+
+from __future__ import annotations
+
+import jax
+
+OPTIMISED = {"xla_backend_optimization_level": 3}
+
+
+def _cheap() -> dict:
+    options = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
+    try:
+        jax.jit(lambda x: x + 1, compiler_options=options).lower(1).compile()
+    except Exception:  # an XLA without the option: keep the one every XLA knows
+        del options["xla_cpu_use_fusion_emitters"]
+    return options
+
+
+CHEAP = _cheap()
