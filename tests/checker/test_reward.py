@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from helpers.checker_cases import TINY
+from helpers.xla import CHEAP
 
 import checker
 from checker import TrainedChecker, init_buffer, push, violation_prob
@@ -27,7 +28,7 @@ def test_push_order_and_clearing():
     b = np.asarray(buf)[..., 0, 0, 0]
     # env 0: episode started at frame 5 -> [0, 0, 5]; env 1: started at frame 3 -> [3, 4, 5].
     np.testing.assert_array_equal(b, [[0, 0, 5], [3, 4, 5]])
-    jitted = jax.jit(push)(buf, frames[0], jnp.zeros(2, bool))
+    jitted = jax.jit(push, compiler_options=CHEAP)(buf, frames[0], jnp.zeros(2, bool))
     np.testing.assert_array_equal(np.asarray(jitted)[..., 0, 0, 0], [[0, 5, 1], [4, 5, 1]])
 
 
@@ -59,11 +60,11 @@ def test_violation_prob_table_path_matches_direct():
     rng = np.random.default_rng(0)
     toks = jnp.asarray(table[rng.integers(0, len(table), n)])
     buf = jnp.asarray(rng.integers(0, 6, (n, TINY.window, 5, 5, 3)), jnp.uint8)
-    direct = jax.nn.sigmoid(jax.jit(TrainedChecker.logits)(tc, buf, toks))
-    p = jax.jit(violation_prob)(tc, buf, toks)
+    direct = jax.nn.sigmoid(jax.jit(TrainedChecker.logits, compiler_options=CHEAP)(tc, buf, toks))
+    p = jax.jit(violation_prob, compiler_options=CHEAP)(tc, buf, toks)
     assert p.shape == (n,) and p.dtype == jnp.float32
     np.testing.assert_allclose(np.asarray(p), np.asarray(direct), rtol=1e-5, atol=1e-6)
     # A row that is no sentence of the grammar gets NaN, loudly; the others are unaffected.
     odd = toks.at[0].set(jnp.arange(1, language.MAX_LEN + 1) % language.vocab_size())
-    codes = np.asarray(jax.jit(sentence_codes)(tc, odd))
+    codes = np.asarray(jax.jit(sentence_codes, compiler_options=CHEAP)(tc, odd))
     assert np.isnan(codes[0]).all() and np.isfinite(codes[1:]).all()

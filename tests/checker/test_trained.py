@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers.xla import CHEAP
 
 import checker
 from checker import CheckerDataset, TrainedChecker
@@ -26,9 +27,9 @@ def test_save_load_roundtrip(tmp_path, toy, trained_toy):
     assert back.config == trained.config and back.lookahead == trained.lookahead
     w, t = jnp.asarray(test.windows[:64]), jnp.asarray(test.tokens[:64])
     # Jittable with the checker as an argument (params traced, config static).
-    logits = jax.jit(TrainedChecker.logits)
+    logits = jax.jit(TrainedChecker.logits, compiler_options=CHEAP)
     np.testing.assert_array_equal(np.asarray(logits(back, w, t)), np.asarray(logits(trained, w, t)))
-    probs = jax.jit(TrainedChecker.probs)(back, w, t)
+    probs = jax.jit(TrainedChecker.probs, compiler_options=CHEAP)(back, w, t)
     np.testing.assert_allclose(np.asarray(probs), jax.nn.sigmoid(logits(trained, w, t)), rtol=1e-6)
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import checker
 from checker import CheckerConfig, CheckerDataset, NoisyOracleParams, noisy_oracle_policy
 from checker.train import CheckerTrainConfig, train_checker
+from helpers.xla import CHEAP
 from jaxgrid import language
 from jaxgrid.constants import BLUE, DOOR, RED
 from jaxgrid.wrappers import AutoReset
@@ -41,9 +42,12 @@ def replay_episodes(env) -> dict[str, np.ndarray]:
     """
     auto = AutoReset(env)
     k_reset, _ = jax.random.split(jax.random.PRNGKey(3))
-    states, ts = jax.jit(jax.vmap(auto.reset))(jax.random.split(k_reset, ENVS))
-    step = jax.jit(jax.vmap(auto.step))
-    policy = jax.jit(lambda s, o: noisy_oracle_policy(SEEK, o, s, jax.random.PRNGKey(0)))
+    reset = jax.jit(jax.vmap(auto.reset), compiler_options=CHEAP)
+    states, ts = reset(jax.random.split(k_reset, ENVS))
+    step = jax.jit(jax.vmap(auto.step), compiler_options=CHEAP)
+    policy = jax.jit(
+        lambda s, o: noisy_oracle_policy(SEEK, o, s, jax.random.PRNGKey(0)), compiler_options=CHEAP
+    )
     images, starts, viols, monitor = [ts.observation["image"]], [np.ones(ENVS, bool)], [], []
     viols.append(np.zeros(ENVS, bool))
     monitor.append(np.zeros(ENVS, bool))

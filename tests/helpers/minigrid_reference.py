@@ -30,6 +30,7 @@ from minigrid.core.mission import MissionSpace
 from minigrid.core.world_object import WorldObj
 from minigrid.minigrid_env import MiniGridEnv
 
+from helpers.xla import CHEAP
 from jaxgrid.compat import from_minigrid
 from jaxgrid.constants import ACTION_NAMES, DROP, EMPTY_CELL, PICKUP, TOGGLE
 from jaxgrid.environment import Environment
@@ -141,7 +142,7 @@ def config_env(env: Environment) -> Environment:
     )
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@functools.partial(jax.jit, static_argnums=0, compiler_options=CHEAP)
 def jax_rollout(env: Environment, states, actions):
     """``vmap`` over episodes of a ``lax.scan`` of ``env.step`` over ``actions`` ``(B, T)``.
 

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers.xla import CHEAP
 
 import jaxgrid
 from jaxgrid import registry
@@ -150,8 +151,8 @@ def _env(case):
 def test_step_and_reset_compile_once(case):
     chex.clear_trace_counter()
     env = _env(case)
-    reset = jax.jit(chex.assert_max_traces(env.reset, n=1))
-    step = jax.jit(chex.assert_max_traces(env.step, n=1))
+    reset = jax.jit(chex.assert_max_traces(env.reset, n=1), compiler_options=CHEAP)
+    step = jax.jit(chex.assert_max_traces(env.step, n=1), compiler_options=CHEAP)
     keys = jax.random.split(KEY, 4)
     for k in keys:
         state, ts = reset(k)
@@ -162,7 +163,7 @@ def test_step_and_reset_compile_once(case):
 def test_equal_envs_share_one_compilation():
     chex.clear_trace_counter()
 
-    @jax.jit
+    @functools.partial(jax.jit, compiler_options=CHEAP)
     @chex.assert_max_traces(n=1)
     def step(env, state, action):
         return env.step(state, action)
@@ -199,12 +200,12 @@ def test_jit_vmap_over_a_batch_of_keys(env_id):
     env = jaxgrid.make(env_id)
     n = 16
     keys = jax.random.split(KEY, n)
-    states, ts = jax.jit(jax.vmap(env.reset))(keys)
+    states, ts = jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)(keys)
     v = env.view_size
     assert ts.observation["image"].shape == (n, v, v, 3)
     assert states.grid.shape == (n, env.width, env.height, 3)
     actions = jax.random.randint(jax.random.PRNGKey(1), (n,), 0, NUM_ACTIONS)
-    states2, ts2 = jax.jit(jax.vmap(env.step))(states, actions)
+    states2, ts2 = jax.jit(jax.vmap(env.step), compiler_options=CHEAP)(states, actions)
     assert ts2.reward.shape == (n,) and ts2.terminated.shape == (n,)
     for i in (0, 5, n - 1):  # batched results equal the unbatched ones
         s, t = env.reset(keys[i])
@@ -217,7 +218,7 @@ def test_jit_vmap_over_a_batch_of_keys(env_id):
         assert len({np.asarray(g).tobytes() for g in states.grid}) > n // 2
 
 
-@functools.partial(jax.jit, static_argnums=(0, 2, 3))
+@functools.partial(jax.jit, static_argnums=(0, 2, 3), compiler_options=CHEAP)
 def _rollout(env, key, num_envs=8, num_steps=64):
     """Random-action rollout with AutoReset under jit(vmap) in lax.scan."""
     auto = AutoReset(env)
@@ -294,7 +295,7 @@ def test_autoreset_invariants_under_vmap_and_scan():
     assert done.sum() > 50  # episodes end by truncation every 9 steps (or earlier)
     count = np.asarray(after.step_count)
     np.testing.assert_array_equal(count, np.where(done, 0, np.asarray(before.step_count) + 1))
-    observed = jax.vmap(jax.vmap(env.observe))(after)
+    observed = jax.jit(jax.vmap(jax.vmap(env.observe)), compiler_options=CHEAP)(after)
     chex.assert_trees_all_equal(ts.observation, observed)
     final, obs = ts.info["final_observation"], ts.observation
     same = (np.asarray(final["image"]) == np.asarray(obs["image"])).all(axis=(2, 3, 4))

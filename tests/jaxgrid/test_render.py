@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers.xla import CHEAP
 
 import jaxgrid
 from jaxgrid.ascii import parse_ascii
@@ -17,14 +18,17 @@ from jaxgrid.render import render, render_ansi, render_view, tile_atlas
 from jaxgrid.video import VIOLATION_RGB, caption_frames, record_episodes
 
 ROOT = Path(__file__).resolve().parents[2]
-render_jit = jax.jit(render, static_argnums=1, static_argnames=("tile_size", "highlight"))
-render_view_jit = jax.jit(render_view, static_argnums=(1, 2, 3))
+render_jit = jax.jit(
+    render, static_argnums=1, static_argnames=("tile_size", "highlight"), compiler_options=CHEAP
+)
+render_view_jit = jax.jit(render_view, static_argnums=(1, 2, 3), compiler_options=CHEAP)
 
 
 def test_render_shape_dtype_and_batch():
     env = jaxgrid.make("TwoRooms-v0")
-    states, _ = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(1), 5))
-    batch = jax.jit(jax.vmap(lambda s: render(s, env, tile_size=8)))(states)
+    reset = jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)
+    states, _ = reset(jax.random.split(jax.random.PRNGKey(1), 5))
+    batch = jax.jit(jax.vmap(lambda s: render(s, env, tile_size=8)), compiler_options=CHEAP)(states)
     assert batch.shape == (5, 7 * 8, 9 * 8, 3) and batch.dtype == jnp.uint8
     for i in range(5):  # vmapped == one by one
         one = jax.tree.map(lambda x, i=i: x[i], states)
