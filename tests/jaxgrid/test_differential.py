@@ -15,12 +15,14 @@ the semantics jaxgrid reproduces, so their layouts still exercise the core dynam
 
 from __future__ import annotations
 
+import functools
 import zlib
 
 import jax
 import numpy as np
 import pytest
 from helpers import minigrid_reference as R
+from helpers.xla import CHEAP
 from minigrid.core.world_object import Ball, Box, Key
 
 import jaxgrid
@@ -76,6 +78,19 @@ LEVELS = [
     ("ObstructedMaze-1Dl", "MiniGrid-ObstructedMaze-1Dl-v0", {"max_steps": 150}, True),
     ("RedBlueDoors-6x6", "MiniGrid-RedBlueDoors-6x6-v0", {"max_steps": 150}, True),
 ]
+# The default run steps a representative level of each kind (keys and locked doors, a 3x3 view,
+# see-through walls, lava, several rooms, boxes and balls, a level with its own step, a random
+# start); the others run with ``-m slow``, as do many more seeds of every level.
+DEFAULT_LEVELS = {
+    "DoorKey-5x5",
+    "DoorKey-8x8-view3",
+    "DistShift1",
+    "LavaGapS7",
+    "MultiRoom-N2-S4",
+    "Playground",
+    "ObstructedMaze-1Dl",
+    "Empty-Random-5x5",
+}
 SLOW_LEVELS = LEVELS + [
     ("DoorKey-16x16", "MiniGrid-DoorKey-16x16-v0", {}, False),
     ("DoorKey-6x6-view9", "MiniGrid-DoorKey-6x6-v0", {"agent_view_size": 9}, False),
@@ -105,11 +120,22 @@ def _run(env_id, kwargs, base_step, seeds, action_seed=0, **kw):
     )
 
 
+@functools.cache
+def _default_episodes(label):
+    """The recorded episodes of level ``label``'s default run (once per test process)."""
+    _, env_id, kwargs, base_step = next(lv for lv in LEVELS if lv[0] == label)
+    return _run(env_id, kwargs, base_step, range(SEEDS))
+
+
 @pytest.mark.parametrize(
-    "env_id, kwargs, base_step", [lv[1:] for lv in LEVELS], ids=[lv[0] for lv in LEVELS]
+    "label",
+    [
+        pytest.param(lv[0], id=lv[0], marks=() if lv[0] in DEFAULT_LEVELS else pytest.mark.slow)
+        for lv in LEVELS
+    ],
 )
-def test_converted_levels_step_like_minigrid(env_id, kwargs, base_step):
-    episodes = _run(env_id, kwargs, base_step, range(SEEDS))
+def test_converted_levels_step_like_minigrid(label):
+    episodes = _default_episodes(label)
     assert len(episodes) == SEEDS and sum(ep.length for ep in episodes) >= SEEDS
 
 
@@ -133,10 +159,8 @@ def test_converted_levels_step_like_minigrid_many_seeds(env_id, kwargs, base_ste
 def test_differential_run_exercises_the_dynamics():
     """The random-action runs above are not vacuous: goals, lava, doors, boxes, hands all move."""
     totals = {}
-    for env_id in ("MiniGrid-DoorKey-5x5-v0", "MiniGrid-LavaGapS7-v0", "MiniGrid-Playground-v0"):
-        mg = R.make_reference(env_id)
-        episodes = R.differential_run(mg, range(SEEDS), min(mg.max_steps, MAX_T))
-        for k, v in R.coverage(episodes).items():
+    for label in ("DoorKey-5x5", "LavaGapS7", "Playground"):
+        for k, v in R.coverage(_default_episodes(label)).items():
             totals[k] = totals.get(k, 0) + v
     for event in ("goal", "lava", "truncated", "pickups", "drops", "unlocks", "box_opened"):
         assert totals[event] > 0, (event, totals)
@@ -162,7 +186,10 @@ def _carry(mg, seed):
     mg.carrying = (Key, Ball, Box)[seed % 3](colour)
 
 
-@pytest.mark.parametrize("env_id", ["MiniGrid-DoorKey-8x8-v0", "MiniGrid-LockedRoom-v0"])
+@pytest.mark.parametrize(
+    "env_id",
+    ["MiniGrid-DoorKey-8x8-v0", pytest.param("MiniGrid-LockedRoom-v0", marks=pytest.mark.slow)],
+)
 def test_starting_with_a_carried_object(env_id):
     """The agent starts holding a key, ball or box (set before converting) and drops it."""
     mg = R.make_reference(env_id)
@@ -175,13 +202,14 @@ def test_starting_with_a_carried_object(env_id):
 
 MINIGRID_IDS = [i for i in jaxgrid.registered_ids() if i.startswith("MiniGrid-")]
 
-# Natively generated levels: our reset states, copied into MiniGrid, step like MiniGrid.
+# Natively generated levels: our reset states, copied into MiniGrid, step like MiniGrid (the
+# larger two with ``-m slow``, like many more seeds of every registered level).
 NATIVE = [
     "MiniGrid-DoorKey-5x5-v0",
-    "MiniGrid-DoorKey-8x8-v0",
+    pytest.param("MiniGrid-DoorKey-8x8-v0", marks=pytest.mark.slow),
     "MiniGrid-LavaGapS7-v0",
     "MiniGrid-Empty-Random-5x5-v0",
-    "MiniGrid-Empty-8x8-v0",
+    pytest.param("MiniGrid-Empty-8x8-v0", marks=pytest.mark.slow),
 ]
 
 
@@ -191,7 +219,8 @@ def _native(env_id, num, key_seed, **kw):
     cfg = R.config_env(env)
     mg.reset(seed=0)
     assert cfg == R.config_env(from_minigrid(mg)[0]), "defaults differ from MiniGrid's"
-    states, ts = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(key_seed), num))
+    reset = jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)
+    states, ts = reset(jax.random.split(jax.random.PRNGKey(key_seed), num))
     num_steps = min(env.max_steps, MAX_T)
     actions = R.draw_actions(key_seed, num, num_steps)
     episodes = []

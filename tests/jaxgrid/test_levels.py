@@ -19,6 +19,7 @@ import jax
 import numpy as np
 import pytest
 from helpers import minigrid_reference as R
+from helpers.xla import CHEAP
 from minigrid.core.mission import MissionSpace
 from minigrid.envs.doorkey import DoorKeyEnv
 from minigrid.minigrid_env import MiniGridEnv
@@ -34,7 +35,8 @@ ALPHA = 1e-4
 
 
 def jax_resets(env, n=N_JAX, seed=0):
-    states, _ = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(seed), n))
+    reset = jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)
+    states, _ = reset(jax.random.split(jax.random.PRNGKey(seed), n))
     return (np.asarray(states.grid), np.asarray(states.agent_pos), np.asarray(states.agent_dir))
 
 
@@ -124,7 +126,8 @@ def doorkey_choices(grids, pos, dirs):
     }
 
 
-@pytest.mark.parametrize("size", [5, 8])
+# One size of each generator in the default run; the other with ``-m slow``.
+@pytest.mark.parametrize("size", [pytest.param(5, marks=pytest.mark.slow), 8])
 def test_doorkey_layout_distribution(size):
     env_id = f"MiniGrid-DoorKey-{size}x{size}-v0"
     ours = doorkey_choices(*jax_resets(jaxgrid.make(env_id)))
@@ -180,7 +183,7 @@ def lavagap_choices(grids, pos, dirs):
     return {"gap_x": gap_x, "gap_y": gap_y, "gap": gap_x * h + gap_y}
 
 
-@pytest.mark.parametrize("size", [5, 7])
+@pytest.mark.parametrize("size", [pytest.param(5, marks=pytest.mark.slow), 7])
 def test_lavagap_layout_distribution(size):
     env_id = f"MiniGrid-LavaGapS{size}-v0"
     ours = lavagap_choices(*jax_resets(jaxgrid.make(env_id)))
@@ -200,7 +203,7 @@ def empty_choices(grids, pos, dirs):
     return {"agent_cell": cell_id(pos, h), "agent_dir": dirs, "pose": cell_id(pos, h) * 4 + dirs}
 
 
-@pytest.mark.parametrize("size", [5, 6])
+@pytest.mark.parametrize("size", [5, pytest.param(6, marks=pytest.mark.slow)])
 def test_empty_random_layout_distribution(size):
     env_id = f"MiniGrid-Empty-Random-{size}x{size}-v0"
     ours = empty_choices(*jax_resets(jaxgrid.make(env_id)))
