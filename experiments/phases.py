@@ -2,7 +2,10 @@
 
 Kept apart from the pipeline so that :func:`experiments.pipeline.run_experiment` reads as the
 list of phases. Every phase returns what the next needs and, when its artefact already exists,
-loads it instead of recomputing it.
+loads it instead of recomputing it. An artefact that is damaged (its checksum, JSON or records
+fail) or was made from other inputs (the checker's report names the checksums of its data and
+parameters, a PPO run the checker's) is made again by its phase, with a message on stderr:
+safe, since every phase is deterministic given its inputs.
 """
 
 from __future__ import annotations
