@@ -285,7 +285,16 @@ def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
     ``--checker`` whose report does not match it, stops the run with status 2 and a message
     naming the file.
     """
-    cfg = parse_args(sys.argv[1:] if argv is None else argv, scenario_cfg)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    outs = [b for a, b in zip(argv, argv[1:] + [""], strict=True) if a == "--out"]
+    outs += [a.split("=", 1)[1] for a in argv if a.startswith("--out=")]
+    try:  # a run already writing into --out: refused at once, before the flags are parsed
+        if outs and outs[-1]:
+            rundir.check_free(outs[-1])
+    except rundir.LockHeld as e:
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+    cfg = parse_args(argv, scenario_cfg)
     if cfg.quick:  # a smoke test is all compile time: skip LLVM's optimisations (same results)
         flag = "--xla_backend_optimization_level=0"
         if flag not in os.environ.get("XLA_FLAGS", ""):  # read when the CPU backend starts

@@ -23,7 +23,8 @@ import socket
 import sys
 from pathlib import Path
 
-__all__ = ["LOCK_FILE", "LockHeld", "RunLock", "lock", "sha256_bytes", "sha256_file"]
+__all__ = ["LOCK_FILE", "LockHeld", "RunLock", "check_free", "lock", "sha256_bytes",
+           "sha256_file"]
 
 LOCK_FILE = ".lock"
 
@@ -137,6 +138,15 @@ class RunLock:
         return (f"{self.directory} is in use by {self._who(holder)} (lock file {self.path}); "
                 "wait for it, pick another directory, or delete the lock file if that process "
                 "is gone")  # fmt: skip
+
+
+def check_free(directory: str | os.PathLike) -> None:
+    """Raise :class:`LockHeld` if a live process holds the lock of ``directory``; creates and
+    writes nothing, so a command can refuse at once, before it parses or imports more."""
+    run = RunLock(directory)
+    holder = run._holder() if run.path.is_file() else None
+    if holder is not None and not run._stale(holder):
+        raise LockHeld(run._held_message(holder))
 
 
 def lock(directory: str | os.PathLike, what: str = "run") -> RunLock:

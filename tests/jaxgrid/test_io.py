@@ -205,3 +205,14 @@ def test_lock_is_released_on_ctrl_c(tmp_path):
         with rundir.lock(tmp_path):
             raise KeyboardInterrupt
     assert not (tmp_path / rundir.LOCK_FILE).exists()
+
+
+def test_check_free_refuses_a_held_lock_and_writes_nothing(tmp_path):
+    from jaxgrid import rundir
+
+    rundir.check_free(tmp_path / "missing")
+    assert not (tmp_path / "missing").exists()
+    with rundir.lock(tmp_path / "run", "holder"):
+        with pytest.raises(rundir.LockHeld, match="holder"):
+            rundir.check_free(tmp_path / "run")
+    rundir.check_free(tmp_path / "run")
