@@ -19,7 +19,8 @@ from jaxgrid.language import sentence_table
 
 def test_model_shapes_jit_and_decomposition():
     cfg = TINY
-    params = init_params(cfg, jax.random.PRNGKey(0))
+    init = jax.jit(init_params, static_argnums=0, compiler_options=CHEAP)  # eager: op by op
+    params = init(cfg, jax.random.PRNGKey(0))
     m = Checker(cfg)
     b = 6
     w = jax.random.randint(jax.random.PRNGKey(1), (b, cfg.window, 5, 5, 3), 0, 6).astype(jnp.uint8)
