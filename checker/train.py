@@ -34,6 +34,7 @@ from checker.data import (
 )
 from checker.model import Checker, CheckerConfig, init_params
 from checker.trained import TrainedChecker
+from jaxgrid import language
 
 __all__ = ["CheckerTrainConfig", "train_checker"]
 
@@ -100,18 +101,6 @@ class CheckerTrainConfig:
         before augmentation: at least :attr:`batch_size` are needed, which a command checks
         before collecting anything."""
         return int(samples * (1 - self.test_fraction - self.val_fraction))
-
-
-def _token_table(*token_arrays: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Distinct rows over all arrays, and each array's row indices into them."""
-    stacked = np.concatenate(token_arrays)
-    table, inverse = np.unique(stacked, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    out, s = [], 0
-    for a in token_arrays:
-        out.append(inverse[s : s + len(a)].astype(np.int32))
-        s += len(a)
-    return table.astype(np.int32), out
 
 
 def _make_fns(config: CheckerConfig, tx, batch_size: int):
@@ -252,7 +241,9 @@ def train_checker(
             f"CheckerTrainConfig.batch_size={s.batch_size}"
         )
     arrays = [train_ds.tokens] + ([val_ds.tokens] if val_ds is not None else [])
-    table, idx = _token_table(*arrays)
+    # The GRU encodes each distinct sentence once per step; rows gather their code.
+    table = np.unique(np.concatenate(arrays), axis=0).astype(np.int32)
+    idx = [language.sentence_index(np.asarray(a, np.int32), table) for a in arrays]
     table = jnp.asarray(table)
     tr = (jnp.asarray(train_ds.windows), jnp.asarray(idx[0]),
           jnp.asarray(train_ds.labels, jnp.float32))  # fmt: skip
