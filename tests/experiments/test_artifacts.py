@@ -61,6 +61,13 @@ def run_copy(built, tmp_path):
     return pipeline.parse_args([*ARGV, "--out", str(copy)], two_rooms.SCENARIO), copy, state
 
 
+def cases(params, default):
+    """``params`` for ``parametrize``: the ``default`` ones run by default, the rest with
+    ``-m slow`` (each redo retrains or recollects; one damage per artefact kind is enough
+    for the default run)."""
+    return [p if p in default else pytest.param(*p, marks=pytest.mark.slow) for p in params]
+
+
 def damage(path: Path, how: str) -> Path:
     """Truncate ``path`` to half, flip one bit in its middle, or delete it; for a checkpoint
     directory, its newest step's largest file is damaged (deleted: the whole step)."""
@@ -110,8 +117,11 @@ def same_tree(a, b) -> bool:
 
 
 # ------------------------------------------------------------------ a. behaviour agent
-@pytest.mark.parametrize("how", DAMAGES)
-@pytest.mark.parametrize("name", ["metrics.jsonl", "run.json", "checkpoints"])
+@pytest.mark.parametrize(
+    ("name", "how"),
+    cases([(n, h) for n in ("metrics.jsonl", "run.json", "checkpoints") for h in DAMAGES],
+          default=[("checkpoints", "flip"), ("metrics.jsonl", "truncate")]),
+)  # fmt: skip
 def test_behaviour_agent_recovers_from_damage(run_copy, capsys, name, how):
     cfg, out, state = run_copy
     damage(out / "behaviour" / name, how)
@@ -125,8 +135,9 @@ def test_behaviour_agent_recovers_from_damage(run_copy, capsys, name, how):
 # ------------------------------------------------------------------ b. checker data
 # Each case collects again (about 40 s here): the sidecar's JSON damage is one case, JSON
 # damage of every kind is covered by the other phases' files.
-@pytest.mark.parametrize(("name", "how"), [("checker_data.npz", how) for how in DAMAGES]
-                         + [("checker_data.json", "flip")])  # fmt: skip
+@pytest.mark.parametrize(("name", "how"), cases(
+    [("checker_data.npz", how) for how in DAMAGES] + [("checker_data.json", "flip")],
+    default=[("checker_data.npz", "flip")]))  # fmt: skip
 def test_checker_data_is_collected_again(run_copy, capsys, name, how):
     cfg, out, state = run_copy
     damage(out / name, how)
@@ -138,9 +149,10 @@ def test_checker_data_is_collected_again(run_copy, capsys, name, how):
 
 
 # ------------------------------------------------------------------ c. checker
-@pytest.mark.parametrize(("name", "how"), [("checker/params.msgpack", how) for how in DAMAGES]
-                         + [("checker/config.json", "flip"), ("checker.json", "truncate"),
-                            ("checker.json", "delete")])  # fmt: skip
+@pytest.mark.parametrize(("name", "how"), cases(
+    [("checker/params.msgpack", how) for how in DAMAGES]
+    + [("checker/config.json", "flip"), ("checker.json", "truncate"), ("checker.json", "delete")],
+    default=[("checker/params.msgpack", "flip")]))  # fmt: skip
 def test_checker_is_trained_again(run_copy, capsys, name, how):
     cfg, out, state = run_copy
     damage(out / name, how)
@@ -160,8 +172,11 @@ def test_checker_of_other_data_is_trained_again(run_copy, capsys):
 
 
 # ------------------------------------------------------------------ d. PPO per mode
-@pytest.mark.parametrize("how", DAMAGES)
-@pytest.mark.parametrize("name", ["metrics.jsonl", "run.json", "checkpoints"])
+@pytest.mark.parametrize(
+    ("name", "how"),
+    cases([(n, h) for n in ("metrics.jsonl", "run.json", "checkpoints") for h in DAMAGES],
+          default=[("metrics.jsonl", "truncate"), ("checkpoints", "flip")]),
+)  # fmt: skip
 def test_mode_recovers_from_damage(run_copy, capsys, name, how):
     cfg, out, state = run_copy
     damage(out / "modes" / "checker" / name, how)

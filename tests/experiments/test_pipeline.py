@@ -167,7 +167,7 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
                "(default:" not in text]  # fmt: skip
     assert not missing, missing
     assert "(default: 1500000)" in entries["--steps"]
-    assert "(default:none,shaped,checker,lagrangian)" in squeezed(entries["--modes"])
+    assert "(default:checker,shaped,none,lagrangian)" in squeezed(entries["--modes"])
     quick_help = help_entries(_help(capsys, ["--quick"], three_rooms_key.SCENARIO))
     assert "(default: 16384)" in quick_help["--steps"]
     assert "(default: 0.01)" in quick_help["--novelty-bonus"]
