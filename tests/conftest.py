@@ -10,3 +10,21 @@ import os
 _FAST = "--xla_backend_optimization_level=0"
 if _FAST not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FAST).strip()
+
+
+import jax  # noqa: E402  (after XLA_FLAGS: the backend reads them when it starts)
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def compiles():
+    """Names of the JAX compile events while the test runs (public ``jax.monitoring``)."""
+    events = []
+
+    def listen(name, duration, **kwargs):
+        if name.startswith("/jax/core/compile"):
+            events.append(name)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    yield events
+    jax.monitoring.unregister_event_duration_listener(listen)

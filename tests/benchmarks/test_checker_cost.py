@@ -12,20 +12,6 @@ from checker.model import CheckerConfig
 from checker.trained import new_checker
 
 
-@pytest.fixture
-def compiles():
-    """Names of the JAX compile events while the test runs."""
-    events = []
-
-    def listen(name, duration, **kwargs):
-        if name.startswith("/jax/core/compile"):
-            events.append(name)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    yield events
-    jax.monitoring.unregister_event_duration_listener(listen)
-
-
 def test_flags(capsys, compiles):
     with pytest.raises(SystemExit) as exc:
         checker_cost.main(["--envs", "8", "0"])

@@ -11,7 +11,6 @@ import json
 import subprocess
 import sys
 
-import jax
 import pytest
 from helpers.checker_cases import TINY, toy_split
 from helpers.cli_help import help_entries, squeezed
@@ -19,20 +18,6 @@ from helpers.cli_help import help_entries, squeezed
 import checker
 from checker import CheckerTrainConfig, train_checker
 from checker import __main__ as checker_main
-
-
-@pytest.fixture
-def compiles():
-    """Names of the JAX compile events while the test runs."""
-    events = []
-
-    def listen(name, duration, **kwargs):
-        if name.startswith("/jax/core/compile"):
-            events.append(name)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    yield events
-    jax.monitoring.unregister_event_duration_listener(listen)
 
 
 def test_python_m_checker_help_shows_every_setting_with_its_default():

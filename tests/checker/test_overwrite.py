@@ -21,20 +21,6 @@ from checker.trained import new_checker, params_sha256
 from jaxgrid import rundir
 
 
-@pytest.fixture
-def compiles():
-    """Names of the JAX compile events while the test runs."""
-    events = []
-
-    def listen(name, duration, **kwargs):
-        if name.startswith("/jax/core/compile"):
-            events.append(name)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    yield events
-    jax.monitoring.unregister_event_duration_listener(listen)
-
-
 def _flip(path, at: int) -> None:
     data = bytearray(path.read_bytes())
     data[at % len(data)] ^= 0x01

@@ -8,7 +8,6 @@ import dataclasses
 import json
 import os
 
-import jax
 import pytest
 from helpers.cli_help import help_entries, squeezed
 from helpers.experiment_runs import check_outputs, quick
@@ -173,20 +172,6 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
     assert "(default: 0.01)" in quick_help["--novelty-bonus"]
     timing = help_entries(_help(capsys, [], label_timing.SCENARIO, hide=label_timing.HIDDEN))
     assert "--lookahead" not in timing and "--modes" not in timing and "--window" in timing
-
-
-@pytest.fixture
-def compiles():
-    """Names of the JAX compile events while the test runs."""
-    events = []
-
-    def listen(name, duration, **kwargs):
-        if name.startswith("/jax/core/compile"):
-            events.append(name)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    yield events
-    jax.monitoring.unregister_event_duration_listener(listen)
 
 
 @pytest.mark.parametrize(
