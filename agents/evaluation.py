@@ -1,8 +1,8 @@
 """Evaluation episodes: a batch of fresh episodes played once each, on device.
 
 Episodes start from fixed evaluation seeds (the same keys for every method, so methods are
-compared on the same episodes), run with the raw ``env.step`` (no auto-reset) for at most ``max_steps``
-steps, and report per episode whether it reached the goal, whether it violated its
+compared on the same episodes), run with the raw ``env.step`` (no auto-reset) for at most
+``max_steps`` steps, and report per episode whether it reached the goal, whether it violated its
 constraint at least once, and its return in **environment reward only** (shaping never
 enters evaluation).
 """
