@@ -14,8 +14,11 @@ import numpy as np
 
 import jaxgrid
 
-# In display order: the paper's method first, then its baselines (tables and figures use it).
-REWARD_MODES = ("checker", "shaped", "none", "lagrangian")
+# In display order: the paper's method first, then its baselines, then the shields (tables
+# and figures use it).
+REWARD_MODES = ("checker", "shaped", "none", "lagrangian", "shield", "shield_monitor")
+# Modes whose actions pass through a shield (agents.shield), and the judge of each.
+SHIELD_JUDGES = {"shield": "checker", "shield_monitor": "monitor"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,11 +31,17 @@ class PPOConfig:
     the window ending at the new observation exceeds ``checker_threshold`` (``soft_checker``:
     minus ``penalty`` times the probability); ``lagrangian`` PPO-Lagrangian with the
     checker's alarms as the cost, a cost critic, and a multiplier learned to hold the alarms
-    per episode at ``cost_target``.
+    per episode at ``cost_target``; ``shield`` removes, before each step, the actions whose
+    candidate next window the checker scores above ``checker_threshold``
+    (:mod:`agents.shield`), and ``shield_monitor`` those whose candidate step the ground-truth
+    monitor flags. Both shields add ``penalty`` times the policy's own probability of the
+    blocked actions to the loss, so that the policy itself learns what was blocked.
 
-    The penalty of ``shaped`` and ``checker`` is 0 for the first ``penalty_start`` fraction of
-    the updates, then ramps linearly to ``penalty`` over the next ``penalty_warmup`` fraction;
-    the Lagrangian multiplier stays at ``lagrangian_init`` until the ramp begins.
+    The penalty of ``shaped``, ``checker`` and the shields is 0 for the first
+    ``penalty_start`` fraction of the updates (0 by default: the constraint acts from the
+    first update), then ramps linearly to ``penalty`` over the next ``penalty_warmup``
+    fraction; the Lagrangian multiplier stays at ``lagrangian_init`` until the ramp begins.
+    The shields block from the first step whatever ``penalty_start``.
 
     ``novelty_bonus`` (0: off) adds an episodic exploration bonus to the training reward
     whenever a step reaches a (cell, carrying or not) pair not yet visited in the episode,
@@ -63,9 +72,11 @@ class PPOConfig:
     ent_coef: float = 0.01  # entropy bonus
     vf_coef: float = 0.5  # value-loss weight
     max_grad_norm: float = 0.5  # global gradient-norm clip
-    reward_mode: str = "none"  # none | shaped | checker | lagrangian
-    penalty: float = 1.0  # reward subtracted per violation (shaped) or alarm (checker)
-    penalty_start: float = 0.2  # fraction of the run before the constraint acts
+    reward_mode: str = "none"  # one of REWARD_MODES
+    # reward subtracted per violation (shaped) or alarm (checker); shields: weight of the
+    # policy's probability of blocked actions in the loss
+    penalty: float = 1.0
+    penalty_start: float = 0.0  # fraction of the run before the penalty acts (an ablation)
     penalty_warmup: float = 0.1  # fraction of the run over which the penalty ramps up
     checker_threshold: float = 0.5  # checker probability above which it alarms
     soft_checker: bool = False  # penalise the checker's probability instead of its alarm
@@ -104,9 +115,13 @@ class PPOConfig:
         for name in ("lr", "clip_eps", "max_grad_norm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"PPOConfig.{name} must be > 0, got {getattr(self, name)!r}")
-        for name in ("gamma", "gae_lambda", "checker_threshold", "penalty_start", "penalty_warmup"):
+        for name in ("gamma", "gae_lambda", "penalty_start", "penalty_warmup"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"PPOConfig.{name} must be in [0, 1], got {getattr(self, name)}")
+        if not 0 < self.checker_threshold < 1:  # 0 or 1 would alarm always or never
+            raise ValueError(
+                f"PPOConfig.checker_threshold must be in (0, 1), got {self.checker_threshold}"
+            )
         nonnegative = (
             "ent_coef",
             "vf_coef",
@@ -164,7 +179,12 @@ class PPOConfig:
 
     @property
     def uses_checker(self) -> bool:
-        return self.reward_mode in ("checker", "lagrangian")
+        return self.reward_mode in ("checker", "lagrangian", "shield")
+
+    @property
+    def shield_judge(self) -> str | None:
+        """``"checker"`` or ``"monitor"`` in the shield modes, else None."""
+        return SHIELD_JUDGES.get(self.reward_mode)
 
     def make_env(self):
         return jaxgrid.make(self.env_id, **dict(self.env_kwargs))

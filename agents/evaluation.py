@@ -26,8 +26,12 @@ def play_episodes(
     act: Callable[[dict, jax.Array], jax.Array],
     key: jax.Array,
     num_episodes: int,
+    shield=None,
 ) -> dict[str, jax.Array]:
     """Play ``num_episodes`` episodes in parallel with ``act(obs_batch, key) -> actions``.
+
+    With a ``shield`` (:class:`agents.shield.Shield`) the actions come from
+    ``act(obs_batch, key, allowed)``, ``allowed`` the shield's bool (E, A) mask of the step.
 
     Layouts come from ``jax.random.split(key, num_episodes)``; action sampling uses keys
     folded from ``key`` too, so a fixed key gives the same episodes for the same policy.
@@ -42,17 +46,24 @@ def play_episodes(
     alive = jnp.ones((num_episodes,), bool)
 
     def body(carry, t):
-        states, obs, alive, ret, viol, length = carry
-        actions = act(obs, jax.random.fold_in(act_key, t))
+        (states, memory), obs, alive, ret, viol, length = carry
+        if shield is None:
+            actions = act(obs, jax.random.fold_in(act_key, t))
+        else:
+            allowed, _ = shield.allowed_now(memory, states)
+            actions = act(obs, jax.random.fold_in(act_key, t), allowed)
         states, ts = jax.vmap(env.step)(states, actions)
+        if shield is not None:
+            memory = shield.observe(memory, ts.observation)
         live = alive.astype(jnp.int32)
         ret = ret + ts.reward * alive
         viol = viol + violation_of(ts).astype(jnp.int32) * live
         length = length + live
         alive = alive & ~(ts.terminated | ts.truncated)
-        return (states, ts.observation, alive, ret, viol, length), None
+        return ((states, memory), ts.observation, alive, ret, viol, length), None
 
-    carry = (states, ts.observation, alive, zeros_f, zeros_i, zeros_i)
+    memory = () if shield is None else shield.start(ts.observation)
+    carry = ((states, memory), ts.observation, alive, zeros_f, zeros_i, zeros_i)
     (_, _, _, ret, viol, length), _ = lax.scan(body, carry, jnp.arange(env.max_steps))
     return {
         "success": ret > 0,

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from agents.config import PPOConfig
+from agents.shield import blocked_mass, mask_logits
 
 
 def gae(
@@ -55,6 +56,7 @@ def ppo_loss(
     batch: dict[str, jax.Array],
     lagrange: jax.Array,
     config: PPOConfig,
+    blocked_weight: jax.Array | float = 0.0,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Clipped PPO loss of one minibatch, with the cost critic in the Lagrangian mode.
 
@@ -63,12 +65,19 @@ def ppo_loss(
     ``sentence``, ``action``, ``log_prob``, ``value``, ``advantage``, ``target`` and, in the
     Lagrangian mode, ``cost_value``, ``cost_advantage``, ``cost_target``. There the advantage
     is ``(A - lagrange * A_cost) / (1 + lagrange)``. Advantages are normalised per minibatch;
-    value losses are clipped as in PPO2. Returns ``(loss, statistics)``.
+    value losses are clipped as in PPO2. With a shield's bool (B, A) ``allowed`` in ``batch``,
+    the policy is the one that acted, restricted to the allowed actions, and
+    ``blocked_weight`` times the unrestricted policy's probability of the blocked actions is
+    added, so that the policy learns to avoid them itself. Returns ``(loss, statistics)``.
     """
     c = config
     logits, value, cost_value = policy(
         params, batch["image"], batch["direction"], batch["sentence"]
     )
+    blocked = jnp.zeros(())
+    if "allowed" in batch:
+        blocked = blocked_mass(logits, batch["allowed"]).mean()
+        logits = mask_logits(logits, batch["allowed"])
     log_probs = jax.nn.log_softmax(logits)
     log_prob = jnp.take_along_axis(log_probs, batch["action"][:, None], axis=-1)[:, 0]
     entropy = -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1).mean()
@@ -90,10 +99,12 @@ def ppo_loss(
     if c.reward_mode == "lagrangian":
         cv_loss = value_loss(cost_value, batch["cost_value"], batch["cost_target"])
     total = actor_loss + c.vf_coef * (v_loss + cv_loss) - c.ent_coef * entropy
+    total = total + blocked_weight * blocked
     approx_kl = jnp.mean((ratio - 1.0) - jnp.log(ratio))
     return total, {
         "loss": total, "actor_loss": actor_loss, "value_loss": v_loss,
         "cost_value_loss": cv_loss, "entropy": entropy, "approx_kl": approx_kl,
+        "blocked_prob": blocked,
     }  # fmt: skip
 
 

@@ -17,6 +17,7 @@ import flax.struct as struct
 import jax
 import jax.numpy as jnp
 
+from agents import shield as shield_mod
 from agents.config import PPOConfig
 from agents.evaluation import violation_of
 from jaxgrid import language
@@ -47,6 +48,7 @@ class Transition(struct.PyTreeNode):
     reward: jax.Array  # shaped training reward, truncation bootstrap included
     cost: jax.Array  # Lagrangian cost, truncation bootstrap included
     done: jax.Array
+    allowed: jax.Array | None = None  # bool (E, A): the shield's mask (shield modes only)
 
 
 # (image, direction, sentence row) -> (logits, value, cost_value), parameters bound.
@@ -83,10 +85,9 @@ def push_frames(checker, frames: jax.Array, emb: jax.Array, start: jax.Array, vi
     return jnp.concatenate([older[:, 1:], emb[:, None]], axis=1)
 
 
-def checker_prob(checker, tokens, frames, emb, sentence) -> jax.Array:
-    """P(violation) of the window (frames..., emb) of each env; ``tokens`` is the table."""
+def checker_prob(checker, lang, frames, emb) -> jax.Array:
+    """P(violation) of the window (frames..., emb) of each env; ``lang`` its sentence codes."""
     window = jnp.concatenate([frames, emb[:, None]], axis=1)
-    lang = checker.encode_language(tokens)[sentence]
     return jax.nn.sigmoid(checker.classify(window, lang))
 
 
@@ -111,6 +112,7 @@ def env_step(
     table: jax.Array,
     words: int,
     checker=None,
+    shield=None,
     penalty: jax.Array | float,
     novelty: jax.Array | float,
 ) -> tuple[EnvCarry, tuple[Transition, dict]]:
@@ -121,13 +123,22 @@ def env_step(
     ``penalty`` times the ground-truth violation (``shaped``) or the checker's alarm
     (``checker``; its probability with ``soft_checker``); ``lagrangian`` puts the alarm in
     the cost instead. The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to
-    the episode. Where an episode was cut by the time limit (not terminated), the reward and
+    the episode. With a ``shield`` (:class:`agents.shield.Shield`) the action is sampled from
+    the policy restricted to the allowed actions, and the mask is kept in the transition.
+    Where an episode was cut by the time limit (not terminated), the reward and
     cost add ``gamma`` times the final observation's values, so GAE treats the step as
     terminal without losing the future. Returns the next carry and (transition, statistics).
     """
     c = config
     obs = carry.obs
     logits, value, cost_value = policy(obs["image"], obs["direction"], carry.sentence)
+    # The checker's sentence codes: the table is encoded once (XLA hoists it out of the scan).
+    lang = None if checker is None else checker.encode_language(table[:, :words])[carry.sentence]
+    allowed, blocked = None, jnp.zeros(logits.shape[:1])
+    if shield is not None:
+        allowed, _ = shield.allowed(carry.state, carry.frames, lang)
+        blocked = shield_mod.blocked_mass(logits, allowed)
+        logits = shield_mod.mask_logits(logits, allowed)
     action = jax.random.categorical(key, logits)
     log_prob = jax.nn.log_softmax(logits)[jnp.arange(action.shape[0]), action]
     states, ts = env.step(carry.state, action)
@@ -139,7 +150,7 @@ def env_step(
     frames = carry.frames
     if checker is not None:
         emb = embed(checker, final["image"])
-        prob = checker_prob(checker, table[:, :words], carry.frames, emb, carry.sentence)
+        prob = checker_prob(checker, lang, carry.frames, emb)
         alarm = (prob > c.checker_threshold).astype(jnp.float32)
         # Append the returned observation: the final one where the episode goes on; where it
         # ended, the window restarts at the next episode's first observation, which only those
@@ -179,7 +190,7 @@ def env_step(
         image=obs["image"], direction=obs["direction"], sentence=carry.sentence,
         action=action, log_prob=log_prob, value=value, cost_value=cost_value,
         reward=reward + c.gamma * trunc * v_final, cost=cost + c.gamma * trunc * cv_final,
-        done=done,
+        done=done, allowed=allowed,
     )  # fmt: skip
     ep_return = carry.ep_return + ts.reward
     ep_length = carry.ep_length + 1
@@ -191,6 +202,8 @@ def env_step(
         "alarms": alarm.sum(),
         "cost": cost.sum(),
         "novelty": bonus.sum(),
+        "blocked": jnp.zeros((), jnp.int32) if allowed is None else (~allowed).sum(),
+        "blocked_mass": blocked.sum(),
     }
     # The constraint is fixed for an episode: look it up only where one began.
     picked = {k: ts.observation[k] for k in ("constraint", "direction") if k in ts.observation}

@@ -86,12 +86,22 @@ def _host(x) -> Any:
     return jax.tree.map(lambda a: np.asarray(a), x)
 
 
+EARLY_FRACTION = 0.2  # "early in training": training violations are also split there
+
+
+def early_updates(config: PPOConfig) -> int:
+    """The updates of the first :data:`EARLY_FRACTION` of training (rounded to the nearest)."""
+    return int(round(EARLY_FRACTION * config.num_updates))
+
+
 def chunk_records(
     config: PPOConfig, chunk: int, seeds: Sequence[int], metrics, totals: np.ndarray
 ) -> list[dict]:
     """One JSON-serialisable record per seed for chunk ``chunk`` (0-based)."""
     train, evaluation = metrics["train"], metrics["eval"]
     step = (chunk + 1) * config.eval_every * config.batch_size
+    # Updates in the first EARLY_FRACTION of training (its first env steps).
+    early = chunk * config.eval_every + np.arange(config.eval_every) < early_updates(config)
     records = []
     for i, seed in enumerate(seeds):
         t = {k: v[i] for k, v in train.items()}
@@ -109,8 +119,11 @@ def chunk_records(
                     (t["episode_return"] * t["episodes"]).sum() / max(episodes, 1)
                 ),
                 "train/violations": int(t["violations"].sum()),
+                "train/violations_early": int(t["violations"][early].sum()),
                 "train/cum_violations": int(totals[i]),
                 "train/alarms": int(t["alarms"].sum()),
+                "train/blocked": int(t["blocked"].sum()),
+                "train/blocked_rate": float(t["blocked_rate"].mean()),
                 "train/cost_rate": float(t["cost_rate"].mean()),
                 "train/episode_cost": float(t["episode_cost"].mean()),
                 "train/novelty_rate": float(t["novelty_rate"].mean()),
@@ -155,8 +168,10 @@ def run(
             the checkpoint lets a later call resume).
 
     Returns a dict with ``steps`` (num_chunks,), ``eval`` {metric: (seeds, chunks)},
-    ``train_violations`` (seeds,), ``records`` (the JSONL records), ``params`` (stacked
-    over seeds), ``final`` {metric: (seeds,)} when ``final_episodes`` and ``wall_s``.
+    ``train_violations`` (seeds,) and ``train_violations_early`` (seeds,: in the first
+    :data:`EARLY_FRACTION` of the updates), ``records`` (the JSONL records), ``params`` (stacked
+    over seeds), ``final`` {metric: (seeds,)} when ``final_episodes`` (in the shield modes
+    with ``final["unshielded"]``, the policy without its shield) and ``wall_s``.
 
     Raises:
         ValueError: bad configuration (before any compilation), or a resume of ``out_dir``
@@ -298,9 +313,14 @@ class _Programs:
         if num_episodes not in self._final:
             config, learner = self.learner.config, self.learner
             key = jax.random.PRNGKey(config.eval_seed + 1)
-            self._final[num_episodes] = jax.jit(
-                jax.vmap(lambda p: summarise(learner.evaluate(p, key, num_episodes)))
-            )
+            def final(params):
+                out = summarise(learner.evaluate(params, key, num_episodes))
+                if learner.shield is not None:  # the policy alone, too
+                    off = learner.evaluate(params, key, num_episodes, shielded=False)
+                    out["unshielded"] = summarise(off)
+                return out
+
+            self._final[num_episodes] = jax.jit(jax.vmap(final))
         return self._final[num_episodes]
 
 
@@ -400,6 +420,9 @@ def _collect(config: PPOConfig, seeds: list[int], records: list[dict]) -> dict:
         "eval": evaluation,
         "train_violations": np.array(
             [by[s, last]["train/cum_violations"] if last is not None else 0 for s in seeds]
+        ),
+        "train_violations_early": np.array(
+            [sum(by[s, c].get("train/violations_early", 0) for c in chunks) for s in seeds]
         ),
         "train_alarms": np.array([sum(by[s, c]["train/alarms"] for c in chunks) for s in seeds]),
         "records": records,

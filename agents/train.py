@@ -35,6 +35,7 @@ from agents.evaluation import play_episodes, summarise
 from agents.losses import gae, ppo_loss, shuffle
 from agents.networks import ActorCritic, apply_policy, table_features
 from agents.rollout import EnvCarry, Transition
+from agents.shield import make_shield, mask_logits
 from jaxgrid import language
 from jaxgrid.wrappers import BatchedAutoReset
 
@@ -63,6 +64,7 @@ class Learner(struct.PyTreeNode):
     optimizer: Any = struct.field(pytree_node=False)
     has_language: bool = struct.field(pytree_node=False, default=True)
     checker: Any = None
+    shield: Any = None  # agents.shield.Shield in the shield modes
     table: jax.Array = None  # int32 (K, L): the env's sentence table
     # Real tokens of the table's longest sentence. The sentence encoders run this many steps:
     # on the pad tail a GRU's carry is never read (same features and gradients, fewer steps).
@@ -142,7 +144,7 @@ class Learner(struct.PyTreeNode):
         step = functools.partial(
             rollout.env_step, config=self.config, env=self.envs,
             policy=self.policy(runner.params, lang_table), table=self.table, words=self.words,
-            checker=self.checker, penalty=self.penalty_at(runner.update),
+            checker=self.checker, shield=self.shield, penalty=self.penalty_at(runner.update),
             novelty=self.novelty_at(runner.update),
         )  # fmt: skip
         keys = jax.random.split(key, self.config.num_steps)
@@ -159,11 +161,12 @@ class Learner(struct.PyTreeNode):
         _, last_value, last_cost_value = self.policy(params, lang_table)(
             env.obs["image"], env.obs["direction"], env.sentence
         )
-        batch = self._batch(traj, last_value, last_cost_value)
+        batch = self.training_batch(traj, last_value, last_cost_value)
+        blocked_weight = self.penalty_at(runner.update) if self.shield is not None else 0.0
 
         def loss(params, mb, lagrange):
             policy = lambda p, *x: self.policy(p)(*x)
-            return ppo_loss(policy, params, mb, lagrange, c)
+            return ppo_loss(policy, params, mb, lagrange, c, blocked_weight)
 
         def epoch(carry, k):
             params, opt_state = carry
@@ -190,7 +193,7 @@ class Learner(struct.PyTreeNode):
         )  # fmt: skip
         return runner, metrics
 
-    def _batch(self, traj: Transition, last_value, last_cost_value) -> dict:
+    def training_batch(self, traj: Transition, last_value, last_cost_value) -> dict:
         """The flat (T * E, ...) training batch: transitions, advantages and targets."""
         c = self.config
         adv, target = gae(traj.value, traj.reward, traj.done, last_value, c.gamma, c.gae_lambda)
@@ -199,6 +202,8 @@ class Learner(struct.PyTreeNode):
             "action": traj.action, "log_prob": traj.log_prob, "value": traj.value,
             "advantage": adv, "target": target,
         }  # fmt: skip
+        if traj.allowed is not None:
+            batch["allowed"] = traj.allowed
         if c.reward_mode == "lagrangian":
             cadv, ctarget = gae(
                 traj.cost_value, traj.cost, traj.done, last_cost_value, c.gamma, c.gae_lambda
@@ -222,7 +227,8 @@ class Learner(struct.PyTreeNode):
         metrics = jax.tree.map(jnp.mean, info)
         totals = jax.tree.map(jnp.sum, stats)
         metrics.update(
-            {k: totals[k] for k in ("episodes", "successes", "violations", "alarms")},
+            {k: totals[k] for k in ("episodes", "successes", "violations", "alarms", "blocked")},
+            blocked_rate=totals["blocked_mass"] / c.batch_size,
             episode_return=totals["episode_return"] / jnp.maximum(totals["episodes"], 1),
             cost_rate=cost_rate,
             novelty_rate=totals["novelty"] / c.batch_size,
@@ -232,21 +238,29 @@ class Learner(struct.PyTreeNode):
         return lagrange, metrics
 
     # -- evaluation ---------------------------------------------------------------------
-    def act(self, params, obs, key):
-        """Sample actions for a batch of observations (any sentence: the GRU runs on it)."""
+    def act(self, params, obs, key, allowed=None):
+        """Sample actions for a batch of observations (any sentence: the GRU runs on it),
+        among the ``allowed`` ones (bool (B, A)) when given."""
         tokens = obs.get("constraint")
         if tokens is None:
             lang = jnp.zeros((obs["direction"].shape[0], self.network.lang_dim), jnp.float32)
         else:
             lang = self.network.apply(params, tokens, method=ActorCritic.sentence_features)
         logits, _, _ = self.network.apply(params, obs["image"], obs["direction"], lang)
+        if allowed is not None:
+            logits = mask_logits(logits, allowed)
         return jax.random.categorical(key, logits)
 
-    def evaluate(self, params, key, num_episodes: int, env=None):
+    def evaluate(self, params, key, num_episodes: int, env=None, shielded: bool = True):
         """Per-episode results of :func:`agents.evaluation.play_episodes` (fixed ``key`` =
-        fixed episodes) on the raw env (or ``env``)."""
+        fixed episodes) on the raw env (or ``env``): in the shield modes with the shield on
+        (as deployed) unless ``shielded`` is False (the policy alone)."""
         env = self.env if env is None else env
-        return play_episodes(env, lambda o, k: self.act(params, o, k), key, num_episodes)
+        if self.shield is None or not shielded:
+            return play_episodes(env, lambda o, k: self.act(params, o, k), key, num_episodes)
+        shield = self.shield.replace(env=env)
+        act = lambda o, k, allowed: self.act(params, o, k, allowed)  # noqa: E731
+        return play_episodes(env, act, key, num_episodes, shield=shield)
 
     def chunk(self, runner: RunnerState):
         """``eval_every`` updates, then evaluation on the fixed evaluation seeds."""
@@ -262,8 +276,11 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
     """Validate ``config`` (and ``checker``) and build the run's :class:`Learner`."""
     env = config.make_env()
     check_checker(config, checker, env)
-    if config.reward_mode in ("none", "shaped"):
+    if not config.uses_checker:
         checker = None  # not needed: skip its cost
+    shield = None
+    if config.shield_judge is not None:
+        shield = make_shield(env, config.shield_judge, checker, config.checker_threshold)
     table = language.sentence_table(env)
 
     def schedule(count):
@@ -281,6 +298,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
         network=ActorCritic(num_actions=env.num_actions, conv_channels=config.conv_channels),
         optimizer=optimizer,
         checker=checker,
+        shield=shield,
         has_language=hasattr(env, "constraint_table"),
         table=jnp.asarray(table),
         words=max(1, int((table != language.VOCAB.index(language.PAD)).sum(1).max())),

@@ -132,8 +132,8 @@ def test_checker_embedding_ring_buffer_matches_raw_frames(rollouts, tiny_checker
     # Probabilities from the learner's embedding window vs violation_prob on raw frames.
     frames_before = np.concatenate([runner0.env.frames[None], carries.frames[:-1]])
     sentence_before = np.concatenate([runner0.env.sentence[None], carries.sentence[:-1]])
-    tokens = learner.table[:, : learner.words]
-    prob = fast_jit(jax.vmap(functools.partial(rollout.checker_prob, tiny_checker, tokens)))(
+    codes = tiny_checker.encode_language(learner.table[:, : learner.words])
+    prob = fast_jit(jax.vmap(lambda f, e, s: rollout.checker_prob(tiny_checker, codes[s], f, e)))(
         frames_before, embed(ref["final_image"]), sentence_before
     )
     np.testing.assert_allclose(prob, ref["prob"], atol=1e-5)

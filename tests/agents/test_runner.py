@@ -196,11 +196,12 @@ def test_checkpoint_resume_is_bit_identical(tmp_path, uninterrupted):
 
 
 # ------------------------------------------------------------------- non-finite guard
-# Every step raises the checker's alarm (threshold 0); the penalty is 0 for the first chunk
+# Every step raises the checker's alarm (threshold 1e-6, far below the tiny checker's
+# probabilities); the penalty is 0 for the first chunk
 # (penalty_start: half of the 4 updates), then 1e38 per step: the second chunk's returns
 # overflow float32. Six envs: one device takes an env batch that 4 devices would refuse.
 DIVERGING = dataclasses.replace(
-    TINY, num_envs=6, reward_mode="checker", checker_threshold=0.0, penalty=1e38,
+    TINY, num_envs=6, reward_mode="checker", checker_threshold=1e-6, penalty=1e38,
     penalty_start=0.5, penalty_warmup=0.0,
 )  # fmt: skip
 

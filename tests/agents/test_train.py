@@ -17,7 +17,7 @@ from agents.config import PPOConfig
 from agents.train import make_learner, make_train
 
 LAGRANGIAN = dataclasses.replace(
-    TINY, reward_mode="lagrangian", checker_threshold=0.0, cost_target=0.25, lagrangian_lr=0.1
+    TINY, reward_mode="lagrangian", checker_threshold=1e-6, cost_target=0.25, lagrangian_lr=0.1
 )
 
 

@@ -1,0 +1,127 @@
+"""Action shields: before each step, remove the actions a judge expects to violate the constraint.
+
+For every env and every action, a copy of the environment is stepped (pure JAX, ``vmap`` over
+the actions), giving the candidate next observation of each action. A judge scores each
+candidate:
+
+* ``checker``: the trained checker's violation probability for the window that ends at the
+  candidate observation (the last ``window - 1`` frames of the episode, then the candidate);
+  an action is blocked where it exceeds ``threshold``. The checker is trained on just-before
+  labels, so a candidate is blocked when it leads to a state from which a violation is
+  expected next: the shield keeps the agent out of the states the ``checker`` reward mode
+  penalises.
+* ``monitor``: the ground-truth monitor's violation flag of the candidate step (a perfect
+  one-step judge, the reference the learned checker is measured against).
+
+The policy samples from its distribution restricted to the allowed actions (renormalised);
+where every action is blocked, the least risky one stays allowed. PPO learns from that masked
+distribution: the mask is stored with each transition and applied again in the loss
+(:func:`mask_logits`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import flax.struct as struct
+import jax
+import jax.numpy as jnp
+
+from agents.evaluation import violation_of
+from checker import reward
+
+JUDGES = ("checker", "monitor")
+# A blocked action's logit: its probability underflows to 0 and its log-probability stays
+# finite, so entropies and log-ratios never see inf - inf.
+BLOCKED_LOGIT = -1e9
+
+
+def mask_logits(logits: jax.Array, allowed: jax.Array) -> jax.Array:
+    """(..., A) logits with the blocked actions (``allowed`` False) removed."""
+    return jnp.where(allowed, logits, BLOCKED_LOGIT)
+
+
+def blocked_mass(logits: jax.Array, allowed: jax.Array) -> jax.Array:
+    """(...,) the unmasked policy's probability of the blocked actions."""
+    return jnp.sum(jax.nn.softmax(logits) * ~allowed, axis=-1)
+
+
+def allow_least_risky(risk: jax.Array, threshold: float) -> jax.Array:
+    """bool (E, A): ``risk <= threshold``, or only the least risky action where none passes."""
+    allowed = risk <= threshold
+    fallback = jax.nn.one_hot(jnp.argmin(risk, axis=-1), risk.shape[-1], dtype=bool)
+    return jnp.where(allowed.any(-1, keepdims=True), allowed, fallback)
+
+
+class Shield(struct.PyTreeNode):
+    """A judge of candidate actions for a batch of envs.
+
+    ``allowed(states, frames, lang) -> (allowed bool (E, A), risk float32 (E, A))`` where
+    ``states`` are the envs' (raw, batched) states, ``frames`` the checker's embeddings of the
+    last ``window - 1`` frames of each env's episode (E, n - 1, D) and ``lang`` the checker's
+    sentence codes (E, G); the ``monitor`` judge reads neither.
+    """
+
+    env: Any = struct.field(pytree_node=False)
+    judge: str = struct.field(pytree_node=False)
+    threshold: float = struct.field(pytree_node=False, default=0.5)
+    checker: Any = None
+
+    def candidates(self, states):
+        """Step every action from every state: ``(states, timesteps)`` with axes (E, A)."""
+        actions = jnp.arange(self.env.num_actions)
+        step_all = jax.vmap(self.env.step, in_axes=(None, 0))
+        return jax.vmap(step_all, in_axes=(0, None))(states, actions)
+
+    def risk(self, states, frames: jax.Array, lang: jax.Array) -> jax.Array:
+        """float32 (E, A): each action's violation probability (checker) or flag (monitor)."""
+        _, ts = self.candidates(states)
+        if self.judge == "monitor":
+            return violation_of(ts).astype(jnp.float32)
+        emb = self.checker.embed_states(ts.observation["image"])  # (E, A, D)
+        e, a, d = emb.shape
+        older = jnp.broadcast_to(frames[:, None], (e, a) + frames.shape[1:])
+        window = jnp.concatenate([older, emb[:, :, None]], axis=2).reshape(e * a, -1, d)
+        codes = jnp.repeat(lang, a, axis=0)
+        return jax.nn.sigmoid(self.checker.classify(window, codes)).reshape(e, a)
+
+    def allowed(self, states, frames: jax.Array, lang: jax.Array):
+        risk = self.risk(states, frames, lang)
+        return allow_least_risky(risk, self.threshold), risk
+
+    # -- episodes played without the learner's ring buffer (evaluation) -----------------
+    def start(self, obs: dict):
+        """The memory of fresh episodes whose first observations are ``obs``: the raw window
+        ending at the current observation, and the checker's codes of each sentence."""
+        if self.judge == "monitor":
+            return ()
+        e, n = obs["image"].shape[0], self.checker.config.window
+        empty = jnp.zeros((e, n) + obs["image"].shape[1:], jnp.uint8)
+        window = reward.push(empty, obs["image"], jnp.ones((e,), bool))
+        return window, self.checker.encode_language(obs["constraint"])
+
+    def observe(self, memory, obs: dict):
+        """The memory after the envs moved on to ``obs`` (same episodes)."""
+        if self.judge == "monitor":
+            return memory
+        window, lang = memory
+        return reward.push(window, obs["image"], jnp.zeros(window.shape[:1], bool)), lang
+
+    def allowed_now(self, memory, states):
+        """:meth:`allowed` from a :meth:`start`/:meth:`observe` memory."""
+        if self.judge == "monitor":
+            return self.allowed(states, None, None)
+        window, lang = memory
+        return self.allowed(states, self.checker.embed_states(window[:, 1:]), lang)
+
+
+def make_shield(env, judge: str, checker=None, threshold: float = 0.5) -> Shield:
+    """A :class:`Shield` for ``env``; the ``checker`` judge needs a trained ``checker``."""
+    if judge not in JUDGES:
+        raise ValueError(f"shield judge must be one of {JUDGES}, got {judge!r}")
+    if judge == "checker" and checker is None:
+        raise ValueError("a checker shield needs a trained checker")
+    if not 0 < threshold < 1:
+        raise ValueError(f"shield threshold must be in (0, 1), got {threshold!r}")
+    return Shield(env=env, judge=judge, threshold=float(threshold),
+                  checker=checker if judge == "checker" else None)  # fmt: skip
