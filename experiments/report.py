@@ -11,7 +11,7 @@ Contents
 - :data:`RESULTS_SCHEMA` and :func:`validate_results`: the ``results.json`` contract.
 - :func:`t_quantile` and :func:`mean_ci`: Student-t confidence intervals over seeds.
 - :func:`plot_curves`: violation % and mean reward against env steps, one line per mode with a
-  95% CI band over seeds (the paper's Figures 4 and 5).
+  95% bootstrap band of the interquartile mean over seeds (the paper's Figures 4 and 5).
 - :func:`results_table`, :func:`write_report`, :func:`summarise`: Markdown table, atomic
   ``results.json`` + ``results.md``, and the end-of-run console summary.
 
@@ -19,7 +19,12 @@ Conventions for the optional extras that this module understands (all other extr
 allowed and passed through untouched):
 
 - ``methods.<mode>.final_per_seed``: ``{"violation_rate": [S], "mean_reward": [S],
-  "success_rate": [S]}`` (any subset). When present the table shows ``mean ± CI half-width``.
+  "success_rate": [S]}`` (any subset). When present (and ``iqm`` is not) the table shows
+  ``mean ± CI half-width``.
+- ``methods.<mode>.iqm``: ``{metric: {"iqm", "lo", "hi", "per_seed"}}``
+  (:func:`experiments.stats.summary`); the table shows ``IQM [lo, hi]``.
+- ``methods.<mode>.final_unshielded``: the shield modes' policy evaluated without its shield.
+- ``comparisons``: ``{name: {"p", "lo", "hi"}}`` probabilities of improvement.
 - ``methods.<mode>.curve_per_seed``: ``{"step": [T], "violation_rate": [S][T],
   "mean_reward": [S][T], "success_rate": [S][T]}``, read by :func:`curves_from_results`.
 - ``checker.transfer``: a metrics dict like ``checker.test`` (e.g. the 2Rooms checker on
@@ -39,6 +44,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from agents.config import REWARD_MODES
+from experiments.stats import bootstrap_ci
 from jaxgrid.io import atomic_write, write_json
 
 __all__ = [
@@ -72,6 +78,8 @@ MODE_COLORS: dict[str, str] = {
     "shaped": "#2ca02c",  # green: ground-truth shaped baseline
     "none": "#d62728",  # red: unconstrained
     "lagrangian": "#9467bd",  # purple: PPO-Lagrangian on the checker's cost
+    "shield": "#ff7f0e",  # orange: the checker blocks unsafe actions
+    "shield_monitor": "#7f7f7f",  # grey: the ground-truth monitor blocks them (reference)
 }
 
 MODE_LABELS: dict[str, str] = {
@@ -79,6 +87,8 @@ MODE_LABELS: dict[str, str] = {
     "shaped": "ground-truth shaped",
     "none": "unconstrained",
     "lagrangian": "PPO-Lagrangian",
+    "shield": "checker shield",
+    "shield_monitor": "monitor shield",
 }
 
 #: Metrics of the learned checker, all in [0, 1].
@@ -102,7 +112,7 @@ RESULTS_SCHEMA: dict[str, Any] = {
         "transfer": "optional: same as test | null",
     },
     "methods": {
-        "<mode in checker|shaped|none|lagrangian> (at least one)": {
+        "<mode in checker|shaped|none|lagrangian|shield|shield_monitor> (at least one)": {
             "final": {
                 "violation_rate": "rate",
                 "mean_reward": "float",
@@ -363,7 +373,8 @@ def plot_curves(
 
     ``per_seed_curves`` maps a mode to ``{"step": (T,), "violation_rate": (S, T),
     "mean_reward": (S, T)}`` (``success_rate`` optional and not drawn; a (T,) array counts as one
-    seed). Each mode is a line (mean over seeds) with a shaded ``confidence`` Student-t band,
+    seed). Each mode is a line (interquartile mean over seeds) with a shaded ``confidence``
+    bootstrap band (:mod:`experiments.stats`; rates clipped to [0, 100]),
     in the fixed :data:`MODE_COLORS`. The image is ``figsize * dpi`` pixels (1320 x 504 by
     default). Written atomically; returns the path.
     """
@@ -390,10 +401,12 @@ def plot_curves(
             if key not in c:
                 raise ValueError(f"{mode}.{key}: missing")
             y = _as_seed_matrix(c[key], step.shape[0], f"{mode}.{key}") * scale
-            mean, lo, hi = mean_ci(y, axis=0, confidence=confidence)
+            mid, lo, hi = np.array([bootstrap_ci(col, confidence=confidence) for col in y.T]).T
+            if key in _RATE_KEYS:  # an interval never leaves the metric's range
+                lo, hi = np.clip(lo, 0.0, 100.0), np.clip(hi, 0.0, 100.0)
             seeds = y.shape[0]
             label = f"{MODE_LABELS.get(mode, mode)} (n={seeds})"
-            ax.plot(step, mean, color=color, lw=1.8, label=label)
+            ax.plot(step, mid, color=color, lw=1.8, label=label)
             if seeds > 1:
                 ax.fill_between(step, lo, hi, color=color, alpha=0.2, lw=0)
     pct = int(round(confidence * 100))
@@ -406,7 +419,8 @@ def plot_curves(
         ax.set_xlabel("environment steps")
         ax.xaxis.set_major_formatter(EngFormatter(sep=""))
         ax.grid(True, alpha=0.3)
-    ax_r.legend(loc="best", fontsize=8, title=f"mean ± {pct}% CI over seeds", title_fontsize=8)
+    ax_r.legend(loc="best", fontsize=8, title=f"IQM, {pct}% bootstrap CI over seeds",
+                title_fontsize=8)  # fmt: skip
     if title:
         fig.suptitle(title)
     buf = io.BytesIO()
@@ -420,43 +434,72 @@ def plot_curves(
 # ----------------------------------------------------------------------------------------------
 
 
-def _cell(entry: Mapping, key: str, scale: float, digits: int) -> str:
-    """``mean ± half-width`` from ``final_per_seed`` when there are >= 2 seeds, else the final."""
-    per_seed = (entry.get("final_per_seed") or {}).get(key)
+def _cell(entry: Mapping, key: str, scale: float, digits: int, final: str = "final") -> str:
+    """``IQM [lo, hi]`` (95% bootstrap) from the entry's ``iqm`` summaries when present, else
+    ``mean ± t half-width`` from ``final_per_seed`` (>= 2 seeds), else the pooled final."""
+    name = key if final == "final" else f"unshielded_{key}"
+    summary = (entry.get("iqm") or {}).get(name)
+    if summary is not None:
+        point, lo, hi = (summary[k] * scale for k in ("iqm", "lo", "hi"))
+        return f"{point:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+    per_seed = (entry.get(f"{final}_per_seed") or {}).get(key)
     if per_seed is not None and len(per_seed) >= 2:
         mean, lo, hi = mean_ci(np.asarray(per_seed, dtype=np.float64) * scale)
         return f"{mean:.{digits}f} ± {(hi - lo) / 2:.{digits}f}"
-    return f"{float(entry['final'][key]) * scale:.{digits}f}"
+    return f"{float(entry[final][key]) * scale:.{digits}f}"
+
+
+def _count(entry: Mapping, key: str) -> str:
+    summary = (entry.get("iqm") or {}).get(key)
+    if summary is not None:
+        return f"{summary['iqm']:.0f} [{summary['lo']:.0f}, {summary['hi']:.0f}]"
+    return str(entry[key]) if key in entry else "n/a"
 
 
 def results_table(results: Mapping) -> str:
-    """Markdown tables: one row per mode, then the checker metrics per split.
+    """Markdown tables: one row per mode (shield modes twice: as deployed, and the policy
+    without its shield), the comparisons, then the checker metrics per split.
 
-    Method columns: final violation %, mean reward, success % (``mean ± 95% CI half-width``
-    over seeds when ``final_per_seed`` is present, else the pooled final value), training
-    violations, seeds, final evaluation episodes. Checker rows: test, heldout, transfer
-    (``n/a`` when null or absent).
+    Method columns: final violation %, mean reward, success % and training violations (all,
+    and in the first 20% of training): the interquartile mean over seeds with its 95%
+    stratified-bootstrap interval where ``iqm`` summaries exist, else the mean; seeds, final
+    evaluation episodes. Checker rows: test, heldout, transfer (``n/a`` when null).
     """
     lines = [
-        "| Method | Final violation % | Mean reward | Success % | Training violations | Seeds "
-        "| Eval episodes |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| Method | Final violation % | Mean reward | Success % | Training violations "
+        "| ... in the first 20% | Seeds | Eval episodes |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     methods = results["methods"]
     for mode in _ordered_modes(methods):
         e = methods[mode]
-        lines.append(
-            f"| {mode} ({MODE_LABELS.get(mode, mode)}) "
-            f"| {_cell(e, 'violation_rate', 100.0, 1)} "
-            f"| {_cell(e, 'mean_reward', 1.0, 3)} "
-            f"| {_cell(e, 'success_rate', 100.0, 1)} "
-            f"| {int(e['training_violations'])} "
-            f"| {int(e['seeds'])} "
-            f"| {int(e['final']['episodes'])} |"
-        )
+        finals = [("final", "")] + ([("final_unshielded", ", shield off")]
+                                    if "final_unshielded" in e else [])  # fmt: skip
+        for final, note in finals:
+            lines.append(
+                f"| {mode} ({MODE_LABELS.get(mode, mode)}{note}) "
+                f"| {_cell(e, 'violation_rate', 100.0, 1, final)} "
+                f"| {_cell(e, 'mean_reward', 1.0, 3, final)} "
+                f"| {_cell(e, 'success_rate', 100.0, 1, final)} "
+                f"| {_count(e, 'training_violations')} "
+                f"| {_count(e, 'training_violations_first20')} "
+                f"| {int(e['seeds'])} "
+                f"| {int(e[final]['episodes'])} |"
+            )
     lines += [
         "",
-        "Final values: mean ± 95% Student-t CI half-width over seeds where per-seed values exist.",
+        "Interquartile mean over seeds [95% stratified-bootstrap interval]; training "
+        "violations per seed, counted from the first update.",
+    ]
+    comparisons = results.get("comparisons") or {}
+    if comparisons:
+        lines += ["", "| Comparison | P | 95% interval |", "|---|---:|---:|"]
+        for name, c in comparisons.items():
+            x, key = name.split("_beats_shaped_")
+            what = "in the first 20% of training" if key.endswith("first20") else "in training"
+            lines.append(f"| P({x} has fewer violations than shaped {what}) "
+                         f"| {c['p']:.2f} | [{c['lo']:.2f}, {c['hi']:.2f}] |")  # fmt: skip
+    lines += [
         "",
         "| Checker split | Accuracy | Precision | Recall | F1 | AUROC | ECE |",
         "|---|---:|---:|---:|---:|---:|---:|",
@@ -519,7 +562,7 @@ def summarise(results: Mapping) -> str:
             f"  {mode:<{width}}  violations {_cell(e, 'violation_rate', 100.0, 1)}%"
             f"  reward {_cell(e, 'mean_reward', 1.0, 3)}"
             f"  success {_cell(e, 'success_rate', 100.0, 1)}%"
-            f"  training violations {int(e['training_violations'])}"
+            f"  training violations {_count(e, 'training_violations')}"
             f"  ({int(e['seeds'])} seeds, {int(e['final']['episodes'])} episodes)"
         )
     chk = results.get("checker") or {}

@@ -62,6 +62,10 @@ def good() -> dict:
             "shaped": _method(0.01, 0.92, 0.98),
             "none": _method(0.35, 0.93, 0.99),
             "lagrangian": _method(0.05, 0.85, 0.95),
+            "shield": {**_method(0.0, 0.90, 0.96),
+                       "final_unshielded": {"violation_rate": 0.04, "mean_reward": 0.88,
+                                            "success_rate": 0.95, "episodes": 500}},
+            "shield_monitor": _method(0.0, 0.91, 0.97),
         },
         "timing": {"total_s": 123.4},
         "extra_top_level": {"anything": [1, 2, 3]},
@@ -294,6 +298,7 @@ def test_results_table(good):
         assert any(ln.startswith(f"| {mode} ") for ln in rows), mode
     assert "±" in md  # per-seed CI shown
     assert "| 1234 |" in md and "| 500 |" in md
+    assert any(ln.startswith("| shield (checker shield, shield off) | 4.0 |") for ln in rows)
     assert any(ln.startswith("| test |") and "0.990" in ln for ln in rows)
     assert any(ln.startswith("| heldout |") for ln in rows)
     assert not any(ln.startswith("| transfer |") for ln in rows)  # null -> omitted
@@ -305,10 +310,26 @@ def test_results_table(good):
     good["checker"]["heldout"] = None
     good["checker"]["transfer"] = dict(METRICS)
     md = results_table(good)
-    assert "±" not in md.split("Final values")[0]
+    assert "±" not in md.split("Interquartile mean")[0]
     assert "| 2.0 |" in md  # checker violation 0.02 -> 2.0 %
     assert "| heldout | n/a |" in md
     assert "| transfer |" in md
+
+
+def test_results_table_shows_iqm_intervals_and_comparisons(good):
+    from experiments.stats import summary
+
+    entry = good["methods"]["checker"]
+    entry["iqm"] = {"violation_rate": summary([0.0, 0.01, 0.02, 0.03, 0.5]),
+                    "training_violations": summary([10, 20, 30, 40, 5000])}  # fmt: skip
+    good["comparisons"] = {"checker_beats_shaped_training_violations_first20":
+                           {"p": 0.8, "lo": 0.55, "hi": 1.0}}  # fmt: skip
+    md = results_table(good)
+    row = next(ln for ln in md.splitlines() if ln.startswith("| checker "))
+    assert "| 2.0 [" in row  # IQM of the middle three: 1, 2, 3 %
+    assert "| 30 [" in row  # the outlying seed does not move the IQM
+    assert "| P(checker has fewer violations than shaped in the first 20% of training) | 0.80 " \
+           "| [0.55, 1.00] |" in md  # fmt: skip
 
 
 def test_write_report(good, tmp_path):
