@@ -25,6 +25,7 @@ from agents.runner import ResumeError
 from agents.runner import run as run_ppo
 from agents.train import make_learner
 from checker.trained import params_sha256
+from experiments import stats
 from jaxgrid.io import read_json, to_jsonable, write_json, write_jsonl
 
 # Checker metrics copied into results.json (all rates).
@@ -101,14 +102,12 @@ def ppo_config(cfg, mode: str) -> PPOConfig:
 
 
 def behaviour_config(cfg) -> PPOConfig:
-    """The behaviour agent's: ``none`` mode on the checker's scenario for ``behaviour_steps``,
-    with PPO's default entropy bonus (so that the checker's data does not depend on the
-    compared agents' one) and the novelty bonus only on the experiment's own scenario."""
+    """The behaviour agent's: the compared agents' PPO in ``none`` mode on the checker's
+    scenario, for ``behaviour_steps``."""
     ppo = cfg.ppo
     return _evaluated(cfg, dataclasses.replace(
-        ppo, env_id=cfg.checker_env_id, reward_mode="none", ent_coef=PPOConfig.ent_coef,
+        ppo, env_id=cfg.checker_env_id, reward_mode="none",
         total_timesteps=max(cfg.behaviour_steps, ppo.batch_size),
-        novelty_bonus=ppo.novelty_bonus if cfg.checker_env_id == ppo.env_id else 0.0,
     ))  # fmt: skip
 
 
@@ -156,7 +155,8 @@ def _collect(cfg, env_id: str, behaviour, key, samples: int, split: str = "train
         policy, params = behaviour
     settings = cfg.checker_train
     return chk.collect(jaxgrid.make(env_id, split=split), policy, params, key, samples,
-                       settings.window, settings.lookahead, env_id=env_id)  # fmt: skip
+                       settings.window, settings.lookahead, env_id=env_id,
+                       max_steps=cfg.collect_max_steps)  # fmt: skip
 
 
 def _small_samples(cfg) -> int:
@@ -321,11 +321,15 @@ def _method(result: dict, final_episodes: int) -> dict:
     ]
     keys = ("violation_rate", "mean_reward", "success_rate")
     seeds = len(result["seeds"])
-    return {
+    violations = result["train_violations"]
+    early = result.get("train_violations_early", np.zeros_like(violations))
+    entry = {
         "final": {**{k: float(np.mean(final[k])) for k in keys},
                   "episodes": int(final_episodes * seeds)},
-        "training_violations": int(np.rint(np.mean(result["train_violations"]))),
-        "training_violations_per_seed": [int(v) for v in result["train_violations"]],
+        "training_violations": int(np.rint(np.mean(violations))),
+        "training_violations_per_seed": [int(v) for v in violations],
+        "training_violations_first20": int(np.rint(np.mean(early))),
+        "training_violations_first20_per_seed": [int(v) for v in early],
         "training_alarms_per_seed": [int(v) for v in result["train_alarms"]],
         "curve": curve,
         "seeds": seeds,
@@ -334,20 +338,46 @@ def _method(result: dict, final_episodes: int) -> dict:
                            **{k: np.asarray(ev[k]).tolist() for k in keys}},
         "wall_s": float(result["wall_s"]),
     }  # fmt: skip
+    per_seed = {**entry["final_per_seed"], "training_violations": violations,
+                "training_violations_first20": early}  # fmt: skip
+    if "unshielded" in final:  # a shield mode: its policy alone, too
+        off = final["unshielded"]
+        entry["final_unshielded"] = {**{k: float(np.mean(off[k])) for k in keys},
+                                     "episodes": int(final_episodes * seeds)}  # fmt: skip
+        entry["final_unshielded_per_seed"] = {k: [float(v) for v in off[k]] for k in keys}
+        per_seed.update({f"unshielded_{k}": off[k] for k in keys})
+    entry["iqm"] = {k: stats.summary(v) for k, v in per_seed.items()}
+    return entry
+
+
+def _comparisons(methods: dict) -> dict:
+    """P(a run of X has fewer training violations than a run of Y), for X in checker and
+    shield against Y = shaped (the paper's claim and the shield's), where both ran."""
+    out = {}
+    for x in ("checker", "shield"):
+        if x not in methods or "shaped" not in methods:
+            continue
+        for key in ("training_violations", "training_violations_first20"):
+            p, lo, hi = stats.probability_of_improvement(
+                methods[x][f"{key}_per_seed"], methods["shaped"][f"{key}_per_seed"])
+            out[f"{x}_beats_shaped_{key}"] = {"p": p, "lo": lo, "hi": hi}
+    return out
 
 
 def assemble(cfg, out: Path, runs: dict, checker_report: dict, total_s: float) -> dict:
     """The ``results.json`` object (schema: :data:`experiments.report.RESULTS_SCHEMA`)."""
+    methods = {mode: _method(r, cfg.final_episodes) for mode, r in runs.items()}
     return {
         "experiment": cfg.experiment,
-        "config": _config_dict(cfg),
+        "config": {**_config_dict(cfg), "penalty_start": cfg.ppo.penalty_start},
         "checker": {
             "test": checker_report["test"],
             "heldout": checker_report.get("heldout"),
             "transfer": checker_report.get("transfer"),
             "trained_on": cfg.checker_env_id,
         },
-        "methods": {mode: _method(r, cfg.final_episodes) for mode, r in runs.items()},
+        "methods": methods,
+        "comparisons": _comparisons(methods),
         "timing": {"total_s": float(total_s),
                    "modes_s": {m: float(r["wall_s"]) for m, r in runs.items()},
                    "devices": [str(d) for d in jax.devices()], "cpu_count": os.cpu_count()},

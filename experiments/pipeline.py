@@ -66,14 +66,16 @@ Modes = Annotated[tuple[str, ...], PrimitiveConstructorSpec(
 class ExperimentConfig:
     """One experiment; every part is validated on construction (``ValueError``)."""
 
-    experiment: str = "two_rooms"  # names the outputs and selects PRESET_CHANGES (no flag)
+    experiment: str = "two_rooms"  # names the outputs and selects STEP_BUDGETS (no flag)
     checker_env_id: str | None = None  # the checker's scenario; None: the agents' (no flag)
     out: str | None = None  # output directory; None: runs/<experiment>/<date-time>
     checker: str | None = None  # a trained checker's directory, reused (skips phases a-c)
     modes: Modes = REWARD_MODES  # the reward modes compared
-    seeds: int = 3  # agents per mode, trained at once: seeds --seed, --seed + 1, ...
+    seeds: int = 5  # agents per mode, trained at once: seeds --seed, --seed + 1, ...
     behaviour_steps: int = 300_000  # env steps of the behaviour agent (phase a)
     checker_samples: int = 12_000  # windows of checker data (phase b)
+    # steps per env at most while collecting until half the windows are positives (phase b)
+    collect_max_steps: int = 4096
     curve_points: int = 15  # evaluations: every max(1, updates // curve_points) updates
     final_episodes: int = 500  # final evaluation episodes per agent
     gif_episodes: int = 4  # episodes recorded in episodes.gif (0: none)
@@ -84,7 +86,8 @@ class ExperimentConfig:
     # eval_every (from curve_points); the behaviour agent runs on checker_env_id for
     # behaviour_steps with PPO's default entropy bonus, the novelty bonus only on env_id.
     ppo: PPOConfig = PPOConfig(num_envs=128, num_steps=64, num_minibatches=4,
-                               total_timesteps=1_500_000, eval_every=1)  # fmt: skip
+                               total_timesteps=1_500_000, eval_every=1,
+                               novelty_bonus=0.01)  # fmt: skip
     # The checker's training (--checker-*): from --seed, and measured at the threshold at
     # which the agents' checker alarms (--checker-threshold).
     checker_train: CheckerTrainConfig = CheckerTrainConfig(epochs=40)
@@ -102,8 +105,8 @@ class ExperimentConfig:
         if unknown or not self.modes or len(set(self.modes)) < len(self.modes):
             raise ValueError(f"{me}.modes: unknown, repeated or no mode(s) in {self.modes}; "
                              f"choose from {','.join(REWARD_MODES)}")  # fmt: skip
-        positive = ("seeds", "behaviour_steps", "checker_samples", "curve_points",
-                    "final_episodes")  # fmt: skip
+        positive = ("seeds", "behaviour_steps", "checker_samples", "collect_max_steps",
+                    "curve_points", "final_episodes")  # fmt: skip
         for name in positive + ("gif_episodes",):
             value, low = getattr(self, name), int(name in positive)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
@@ -150,46 +153,30 @@ class ExperimentConfig:
 
 BASE = ExperimentConfig()  # the default preset, for TwoRooms
 # Presets: overrides of BASE (a dict overrides inside a nested config), then the experiment's
-# own changes in PRESET_CHANGES (first "all", then the preset's).
+# own step budgets in STEP_BUDGETS (first "all", then the preset's). Every scenario runs the
+# same PPOConfig; only the env id and the step budgets differ (docs/decisions.md).
 PRESETS: dict[str, dict] = {
     # Meaningful results within about 30 minutes on a 2-core CPU.
     "default": {},
     # --quick: the outputs and their schema, in minutes; results mean nothing.
     "quick": dict(quick=True, seeds=2, behaviour_steps=8_192, checker_samples=512,
-                  curve_points=2, final_episodes=32, checker_train=dict(epochs=3),
+                  collect_max_steps=256, curve_points=2, final_episodes=32,
+                  checker_train=dict(epochs=3),
                   ppo=dict(total_timesteps=16_384, num_envs=32, eval_episodes=16)),
-    # --paper: the paper's budget (1e7 steps), 5 seeds, 50 evaluation episodes a checkpoint.
-    "paper": dict(paper=True, seeds=5, behaviour_steps=1_000_000, curve_points=40,
+    # --paper: the paper's budget (1e7 steps), 10 seeds, 50 evaluation episodes a checkpoint.
+    "paper": dict(paper=True, seeds=10, behaviour_steps=1_000_000, curve_points=40,
                   checker_train=dict(epochs=60),
                   ppo=dict(total_timesteps=10_000_000, num_envs=256)),
 }  # fmt: skip
-# TwoRooms-Lava at 1.5M steps: with the penalty from 20% the constrained agents stopped at
-# about 25% success (the unconstrained one needs about 0.8M steps to solve it); at 3M steps two
-# seeds of `shaped` ended at 0-1% violations and 97-99% success. Its behaviour agent also needs
-# longer to meet doors and lava.
-# ThreeRooms-Key's reward (key, locked door, second wall, goal within 150 steps) is too sparse
-# for PPO: in 3M steps of `none` not one of 20k training episodes reached the goal. With an
-# episodic novelty bonus of 0.01 (its agents only; annealed to 0) `none` solved it by 1.1M
-# on one seed; at 1.5M steps, 3 seeds, penalty from 20%, 2 `none` seeds and 1 `shaped` seed
-# solved it and `checker` collapsed when its penalty began (its checker, then trained without
-# distractor copies, alarmed on 8% of the steps facing the key). Hence 3M steps and the
-# penalty from 40%, by when most seeds have found the goal; not all: in the latest default run
-# seed 1 was at 4% success there, and under either penalty it stayed near 20%.
-# TwoRooms-Lava, seed 1 of the default run: its agents found allowed lava's shortcut (a
-# teleport next to the goal) by 0.2M steps and their policy's entropy fell to 0.14 before the
-# penalty began, after which neither `shaped` nor `checker` learned to tell forbidden lava
-# from allowed lava (25.6% and 27.6% violations at 3M steps; seeds 0 and 2 at 0%). With an
-# entropy bonus of 0.03 (`shaped` and `checker`, 3 seeds, 3M steps, 50 evaluation episodes)
-# the last evaluations were 0/4/2% and 0/2/0% violations, 96-100% and 82-96% success; a
-# penalty from the start stopped learning (26% success) and a penalty of 2 cut success to 70%.
-PRESET_CHANGES: dict[str, dict[str, dict]] = {
+# TwoRooms-Lava and ThreeRooms-Key take longer to solve at all (lava's detour; key, locked
+# door and a second wall within 150 steps): 3M steps, and for Lava a behaviour agent that
+# meets doors and lava more often.
+STEP_BUDGETS: dict[str, dict[str, dict]] = {
     "two_rooms_lava": {
-        "all": dict(ppo=dict(ent_coef=0.03)),
         "default": dict(behaviour_steps=600_000, ppo=dict(total_timesteps=3_000_000)),
     },
     "three_rooms_key": {
-        "all": dict(ppo=dict(novelty_bonus=0.01)),
-        "default": dict(ppo=dict(total_timesteps=3_000_000, penalty_start=0.4)),
+        "default": dict(ppo=dict(total_timesteps=3_000_000)),
     },
 }
 
@@ -209,23 +196,29 @@ def scenario(experiment: str, env_id: str, checker_env_id: str | None = None):
 
 def preset(cfg: ExperimentConfig, name: str = "default") -> ExperimentConfig:
     """``cfg`` (a :func:`scenario`) with preset ``name`` and its experiment's changes."""
-    own = PRESET_CHANGES.get(cfg.experiment, {})
+    own = STEP_BUDGETS.get(cfg.experiment, {})
     for changes in (PRESETS[name], own.get("all", {}), own.get(name, {})):
         cfg = override(cfg, changes)
     return cfg
 
 
-def run_experiment(cfg: ExperimentConfig) -> dict:
-    """Run (or resume) every phase of ``cfg`` and write the outputs; returns ``results``."""
+def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
+    """Run (or resume) every phase of ``cfg`` and write the outputs; returns ``results``.
+
+    ``keep``, a dict, receives what the phases returned (``behaviour``, ``data``,
+    ``trained``, ``report``, ``runs``), for a caller that goes on working with them.
+    """
     out = phases.prepare_out(cfg)  # fails here, before any training, if not writable
     start = time.perf_counter()
+    keep = {} if keep is None else keep
     if cfg.checker is not None:
         trained, checker_report = phases.reuse_checker(cfg)
     else:
-        behaviour = phases.behaviour_agent(cfg, out)  # a
-        data = phases.checker_data(cfg, out, behaviour)  # b
+        behaviour = keep["behaviour"] = phases.behaviour_agent(cfg, out)  # a
+        data = keep["data"] = phases.checker_data(cfg, out, behaviour)  # b
         trained, checker_report = phases.train_checker(cfg, out, data, behaviour)  # c
     runs = {mode: phases.train_agents(cfg, out, mode, trained) for mode in cfg.modes}  # d, e
+    keep.update(trained=trained, report=checker_report, runs=runs)
     phases.write_gif(cfg, out, runs, trained)
     results = phases.assemble(cfg, out, runs, checker_report, time.perf_counter() - start)
     paths = phases.write_outputs(cfg, out, results, runs)  # f

@@ -1,12 +1,13 @@
-"""Fault injection into a run directory of the experiment pipeline.
+"""The pipeline's end-to-end smoke test, and fault injection into its run directory.
 
-One tiny run (``--quick``, one seed, the ``checker`` mode only) is built once for the module;
-each case copies it, truncates, bit-flips or deletes one artefact, and resumes the phase that
-reads it. The phase must either redo its work, saying so on stderr and leaving artefacts that
-load again, or stop with exit status 2 and a message naming the file: never a raw traceback,
-never a silent success with other content. The phases are called in this process with the
-checker object the run was built with, so their compiled programs are reused. Two processes
-on one ``--out``: exactly one works, the other exits with status 2 within 5 seconds.
+One tiny run (``--quick``, one seed, the ``checker`` mode only) is built once for the module by
+:func:`experiments.pipeline.run_experiment`; its outputs are checked, then each case copies it,
+truncates, bit-flips or deletes one artefact, and resumes the phase that reads it. The phase
+must either redo its work, saying so on stderr and leaving artefacts that load again, or stop
+with exit status 2 and a message naming the file: never a raw traceback, never a silent success
+with other content. The phases are called in this process with the checker object the run was
+built with, so their compiled programs are reused. Two processes on one ``--out``: exactly one
+works, the other exits with status 2 within 5 seconds.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.experiment_runs import check_outputs
 
 import checker as chk
 from agents.runner import NonFiniteError
@@ -39,17 +41,24 @@ def built(tmp_path_factory):
     """``(cfg, out, state)`` of a finished tiny run; ``state`` holds what its phases returned."""
     out = tmp_path_factory.mktemp("tiny") / "run"
     cfg = pipeline.parse_args([*ARGV, "--out", str(out)], two_rooms.SCENARIO)
-    phases.prepare_out(cfg)
-    behaviour = phases.behaviour_agent(cfg, out)
-    data = phases.checker_data(cfg, out, behaviour)
-    trained, report = phases.train_checker(cfg, out, data, behaviour)
-    runs = {"checker": phases.train_agents(cfg, out, "checker", trained)}
-    phases.write_gif(cfg, out, runs, trained)
-    results = phases.assemble(cfg, out, runs, report, 1.0)
-    phases.write_outputs(cfg, out, results, runs)
-    state = dict(behaviour=behaviour, data=data, trained=trained, report=report, runs=runs,
-                 results=results, out=out)  # fmt: skip
+    state = {"out": out}
+    state["results"] = pipeline.run_experiment(cfg, keep=state)
     return cfg, out, state
+
+
+def test_tiny_run_end_to_end(built, capsys):
+    """The pipeline's smoke test: every phase ran and every output follows the schema."""
+    cfg, out, state = built
+    on_disk = check_outputs(out, "two_rooms", modes=("checker",), seeds=1, final_episodes=32)
+    assert on_disk == read_json(out / "results.json")
+    assert on_disk["methods"]["checker"]["final"] == pytest.approx(
+        state["results"]["methods"]["checker"]["final"]
+    )
+    assert (out / "checker" / "config.json").is_file() and (out / "checker_data.npz").is_file()
+    config = read_json(out / "config.json")
+    assert config["ppo"]["total_timesteps"] == 16_384 and config["checker_train"]["epochs"] == 3
+    test_rows = read_json(out / "checker.json")["details"]["test"]["n"]
+    assert test_rows == pytest.approx(0.15 * 512, abs=2)  # the checker config's test split
 
 
 @pytest.fixture
@@ -188,6 +197,7 @@ def test_mode_recovers_from_damage(run_copy, capsys, name, how):
     assert read_jsonl(out / "modes" / "checker" / "metrics.jsonl") == first["records"]
 
 
+@pytest.mark.slow  # a new checker is a new compile; phase d's redo is covered above
 def test_mode_made_with_another_checker_is_trained_again(run_copy, capsys):
     cfg, out, state = run_copy
     import jax
@@ -255,6 +265,7 @@ def test_reused_checker_with_a_stale_report_is_refused(run_copy, tmp_path, capsy
 
 
 # ------------------------------------------------------------------ runner
+@pytest.mark.slow  # compiles another mode; tests/agents/test_runner.py covers the default run
 def test_non_finite_error_names_a_checkpoint_only_when_one_exists(built, tmp_path):
     """A penalty of 1e38 from the second chunk on makes the value loss overflow there."""
     cfg = built[0]

@@ -1,6 +1,7 @@
 """The paper-reproduction pipeline: its configuration (presets as overrides of one base, the
 published sizes, one command line generated from the configs), bad input rejected before any
-compile, a ``--quick`` TwoRooms run end to end, and (slow) resume and checker reuse."""
+compile, and (slow) a ``--quick`` TwoRooms run of every mode end to end, resume and checker
+reuse. The default run's end-to-end smoke test is in ``test_artifacts.py``."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from helpers.experiment_runs import check_outputs, quick
 from agents.config import REWARD_MODES, PPOConfig
 from checker.train import CheckerTrainConfig
 from experiments import label_timing, phases, pipeline, three_rooms_key, two_rooms, two_rooms_lava
-from experiments.pipeline import BASE, PRESET_CHANGES, PRESETS, ExperimentConfig, preset
+from experiments.pipeline import BASE, PRESETS, STEP_BUDGETS, ExperimentConfig, preset
 
 SCENARIOS = {"two_rooms": two_rooms, "two_rooms_lava": two_rooms_lava,
              "three_rooms_key": three_rooms_key}  # fmt: skip
@@ -43,7 +44,7 @@ def test_preset_is_the_base_plus_its_overrides(experiment, name):
     overrides' values (the experiment's own changes last)."""
     scenario = SCENARIOS[experiment].SCENARIO
     expected = {}
-    own = PRESET_CHANGES.get(experiment, {})
+    own = STEP_BUDGETS.get(experiment, {})
     for changes in (PRESETS[name], own.get("all", {}), own.get(name, {})):
         expected.update(_flat_changes(changes))
     got, base = _flat(preset(scenario, name)), _flat(scenario)
@@ -62,19 +63,21 @@ def _flat_changes(changes: dict, prefix: str = "") -> dict:
 
 
 # The published configurations: (seeds, steps, behaviour steps, checker samples, checker
-# epochs, envs, curve points, evaluation episodes, final episodes, entropy bonus, novelty
-# bonus, penalty start) of every experiment and preset.
+# epochs, envs, curve points, evaluation episodes, final episodes) of every experiment and
+# preset; every other setting is the same for all of them.
 R, L, K = "two_rooms", "two_rooms_lava", "three_rooms_key"
+QUICK = (2, 16_384, 8_192, 512, 3, 32, 2, 16, 32)
+PAPER = (10, 10_000_000, 1_000_000, 12_000, 60, 256, 40, 50, 500)
 PUBLISHED = {
-    (R, "quick"): (2, 16_384, 8_192, 512, 3, 32, 2, 16, 32, 0.01, 0.0, 0.2),
-    (R, "default"): (3, 1_500_000, 300_000, 12_000, 40, 128, 15, 50, 500, 0.01, 0.0, 0.2),
-    (R, "paper"): (5, 10_000_000, 1_000_000, 12_000, 60, 256, 40, 50, 500, 0.01, 0.0, 0.2),
-    (L, "quick"): (2, 16_384, 8_192, 512, 3, 32, 2, 16, 32, 0.03, 0.0, 0.2),
-    (L, "default"): (3, 3_000_000, 600_000, 12_000, 40, 128, 15, 50, 500, 0.03, 0.0, 0.2),
-    (L, "paper"): (5, 10_000_000, 1_000_000, 12_000, 60, 256, 40, 50, 500, 0.03, 0.0, 0.2),
-    (K, "quick"): (2, 16_384, 8_192, 512, 3, 32, 2, 16, 32, 0.01, 0.01, 0.2),
-    (K, "default"): (3, 3_000_000, 300_000, 12_000, 40, 128, 15, 50, 500, 0.01, 0.01, 0.4),
-    (K, "paper"): (5, 10_000_000, 1_000_000, 12_000, 60, 256, 40, 50, 500, 0.01, 0.01, 0.2),
+    (R, "quick"): QUICK,
+    (R, "default"): (5, 1_500_000, 300_000, 12_000, 40, 128, 15, 50, 500),
+    (R, "paper"): PAPER,
+    (L, "quick"): QUICK,
+    (L, "default"): (5, 3_000_000, 600_000, 12_000, 40, 128, 15, 50, 500),
+    (L, "paper"): PAPER,
+    (K, "quick"): QUICK,
+    (K, "default"): (5, 3_000_000, 300_000, 12_000, 40, 128, 15, 50, 500),
+    (K, "paper"): PAPER,
 }  # fmt: skip
 
 
@@ -83,11 +86,11 @@ def test_presets_keep_the_published_configurations(experiment, name):
     cfg = preset(SCENARIOS[experiment].SCENARIO, name)
     ppo, chk = cfg.ppo, cfg.checker_train
     got = (cfg.seeds, ppo.total_timesteps, cfg.behaviour_steps, cfg.checker_samples, chk.epochs,
-           ppo.num_envs, cfg.curve_points, ppo.eval_episodes, cfg.final_episodes, ppo.ent_coef,
-           ppo.novelty_bonus, ppo.penalty_start)  # fmt: skip
+           ppo.num_envs, cfg.curve_points, ppo.eval_episodes, cfg.final_episodes)  # fmt: skip
     assert got == PUBLISHED[experiment, name]
     assert (ppo.num_steps, ppo.num_minibatches, ppo.update_epochs, ppo.lr, ppo.penalty,
-            ppo.penalty_warmup, ppo.seed, cfg.gif_episodes) == (64, 4, 4, 1e-3, 1.0, 0.1, 0, 4)
+            ppo.penalty_start, ppo.penalty_warmup, ppo.ent_coef, ppo.novelty_bonus, ppo.seed,
+            cfg.gif_episodes) == (64, 4, 4, 1e-3, 1.0, 0.0, 0.1, 0.01, 0.01, 0, 4)  # fmt: skip
     assert (chk.window, chk.lookahead, chk.test_fraction, chk.val_fraction) == (5, 1, 0.15, 0.15)
     assert cfg.modes == REWARD_MODES and (cfg.quick, cfg.paper) == (name == "quick",
                                                                      name == "paper")  # fmt: skip
@@ -98,31 +101,24 @@ def test_presets_keep_the_published_configurations(experiment, name):
         assert run.num_updates == run.num_chunks * run.eval_every
 
 
-def test_three_rooms_key_bonus_is_for_its_own_agents_only():
-    """ThreeRooms-Key's agents get the novelty bonus; its behaviour agent, on TwoRooms, does
-    not. Flags win over the preset; TwoRooms is off."""
-    key = preset(three_rooms_key.SCENARIO)
-    assert phases.ppo_config(key, "none").novelty_bonus == 0.01
-    behaviour = phases.behaviour_config(key)
-    assert (behaviour.env_id, behaviour.novelty_bonus) == ("TwoRooms-v0", 0.0)
-    mine = pipeline.parse_args(["--penalty-start", "0.1", "--novelty-bonus", "0"],
-                               three_rooms_key.SCENARIO)  # fmt: skip
-    assert (mine.ppo.penalty_start, mine.ppo.novelty_bonus) == (0.1, 0.0)
-    assert phases.behaviour_config(preset(two_rooms.SCENARIO)).novelty_bonus == 0.0
+@pytest.mark.parametrize("name", list(PRESETS))
+def test_one_configuration_for_every_scenario(name):
+    """Within a preset the scenarios' agents differ in the env id and the step budget only,
+    and every behaviour agent is the compared agents' PPO in ``none`` mode."""
+    def agents(experiment, mode):
+        run = phases.ppo_config(preset(SCENARIOS[experiment].SCENARIO, name), mode)
+        return dataclasses.replace(run, env_id="-", total_timesteps=10**9, eval_every=1)
 
-
-def test_two_rooms_lava_entropy_bonus_is_for_its_compared_agents_only():
-    """TwoRooms-Lava's compared agents get ent_coef 0.03; its behaviour agent (whose rollouts
-    become the checker's data) keeps PPO's default, and runs on its own scenario for its own
-    steps."""
-    lava = preset(two_rooms_lava.SCENARIO)
     for mode in REWARD_MODES:
-        assert phases.ppo_config(lava, mode).ent_coef == 0.03
-    behaviour = phases.behaviour_config(lava)
-    assert behaviour.ent_coef == PPOConfig.ent_coef == 0.01
-    assert (behaviour.env_id, behaviour.total_timesteps) == ("TwoRoomsLava-v0", 600_000)
-    mine = pipeline.parse_args(["--ent-coef", "0"], two_rooms_lava.SCENARIO)
-    assert phases.ppo_config(mine, "checker").ent_coef == 0.0
+        assert agents(R, mode) == agents(L, mode) == agents(K, mode)
+    for experiment in SCENARIOS:
+        cfg = preset(SCENARIOS[experiment].SCENARIO, name)
+        behaviour = phases.behaviour_config(cfg)
+        assert behaviour.env_id == cfg.checker_env_id and behaviour.reward_mode == "none"
+        assert dataclasses.replace(behaviour, env_id="-", total_timesteps=10**9,
+                                   eval_every=1) == agents(experiment, "none")  # fmt: skip
+    key = preset(three_rooms_key.SCENARIO, name)
+    assert phases.behaviour_config(key).env_id == "TwoRooms-v0"
 
 
 def test_flags_set_every_part_and_keep_todays_names(tmp_path):
@@ -166,7 +162,9 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
                "(default:" not in text]  # fmt: skip
     assert not missing, missing
     assert "(default: 1500000)" in entries["--steps"]
-    assert "(default:checker,shaped,none,lagrangian)" in squeezed(entries["--modes"])
+    assert "(default:checker,shaped,none,lagrangian,shield,shield_monitor)" in squeezed(
+        entries["--modes"]
+    )
     quick_help = help_entries(_help(capsys, ["--quick"], three_rooms_key.SCENARIO))
     assert "(default: 16384)" in quick_help["--steps"]
     assert "(default: 0.01)" in quick_help["--novelty-bonus"]
@@ -180,6 +178,9 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
         (["--bogus"], "Unrecognized options: --bogus"),
         (["--seeds", "0"], "--seeds must be an integer >= 1, got 0"),
         (["--modes", "checker,magic"], "--modes: unknown"),
+        (["--modes", "shield,shelter"], "--modes: unknown"),
+        (["--checker-threshold", "0"], "--checker-threshold must be in (0, 1), got 0.0"),
+        (["--checker-threshold", "1.5"], "--checker-threshold must be in (0, 1), got 1.5"),
         (["--quick", "--paper"], "--quick and --paper exclude each other"),
         (["--steps", "1.5"], "'1.5' is not an integer"),
         (["--steps", "1000"], "--steps (1000) gives 0 updates"),
@@ -243,6 +244,7 @@ def two_rooms_run(tmp_path_factory):
     return out, quick(two_rooms, out)
 
 
+@pytest.mark.slow  # every mode, two seeds; the default run's smoke test is in test_artifacts.py
 def test_two_rooms_quick_outputs(two_rooms_run):
     out, results = two_rooms_run
     on_disk = check_outputs(out, "two_rooms")

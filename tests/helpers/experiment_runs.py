@@ -19,7 +19,7 @@ def quick(module, out, *extra) -> dict:
     return pipeline.main(module.SCENARIO, argv)
 
 
-def check_outputs(out, experiment: str, modes=REWARD_MODES) -> dict:
+def check_outputs(out, experiment: str, modes=REWARD_MODES, seeds=2, final_episodes=32) -> dict:
     """Every output of a ``--quick`` run in ``out`` exists and follows the schema."""
     for name in OUTPUTS:
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
@@ -28,8 +28,8 @@ def check_outputs(out, experiment: str, modes=REWARD_MODES) -> dict:
     assert results["experiment"] == experiment
     assert set(results["methods"]) == set(modes)
     for entry in results["methods"].values():
-        assert entry["seeds"] == 2
-        assert entry["final"]["episodes"] == 2 * 32
+        assert entry["seeds"] == seeds
+        assert entry["final"]["episodes"] == seeds * final_episodes
         assert len(entry["curve"]) >= 1
     records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     assert {r["mode"] for r in records} == set(modes)
