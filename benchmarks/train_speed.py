@@ -65,7 +65,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from agents.config import REWARD_MODES
+from agents.config import REWARD_MODES, PPOConfig
 from benchmarks.timing import compile_ahead, timed
 from jaxgrid.io import write_jsonl
 
@@ -107,8 +107,6 @@ def make_checker(env):
 
 
 def make_config(mode: str, sizes: dict, updates: int):
-    from agents.config import PPOConfig
-
     return PPOConfig(
         env_id=sizes["env"],
         reward_mode=mode,
@@ -419,7 +417,7 @@ def main(argv=None) -> list[dict[str, Any]]:
     )
 
     checker = None
-    if any(m in ("checker", "lagrangian") for m in args.modes):
+    if any(PPOConfig(reward_mode=m).uses_checker for m in args.modes):
         import jaxgrid
 
         checker = make_checker(jaxgrid.make(args.env))

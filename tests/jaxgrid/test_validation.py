@@ -117,9 +117,9 @@ def _check_world(env_id, width, height):
 
 
 @pytest.mark.parametrize("env_id", IDS)
-def test_every_id_is_legal_and_solvable_at_its_minimum_and_a_random_size(env_id):
+def test_every_id_is_legal_and_solvable_at_its_minimum_size(env_id):
     env = jaxgrid.make(env_id)
-    for size in _min_sizes(env) + _random_sizes(env_id, env, 1):
+    for size in _min_sizes(env):
         _check_world(env_id, *size)
 
 
@@ -127,7 +127,7 @@ def test_every_id_is_legal_and_solvable_at_its_minimum_and_a_random_size(env_id)
 @pytest.mark.parametrize("env_id", IDS)
 def test_every_id_is_legal_and_solvable_at_many_sizes(env_id):
     env = jaxgrid.make(env_id)
-    for size in _random_sizes(env_id, env, 6)[1:]:  # the first is in the default run
+    for size in _random_sizes(env_id, env, 6):
         _check_world(env_id, *size)
 
 
