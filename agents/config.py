@@ -43,6 +43,11 @@ class PPOConfig:
     fraction; the Lagrangian multiplier stays at ``lagrangian_init`` until the ramp begins.
     The shields block from the first step whatever ``penalty_start``.
 
+    With ``end_episode`` the ``shaped`` and ``checker`` modes also end the training episode
+    where their signal fires (a violation, an alarm; OmniSafe's early-termination baseline):
+    the step is terminal, so the agent loses what the rest of the episode was worth, a cost
+    that is small while the agent cannot reach the goal and grows as it learns to.
+
     ``novelty_bonus`` (0: off) adds an episodic exploration bonus to the training reward
     whenever a step reaches a (cell, carrying or not) pair not yet visited in the episode,
     annealed linearly to 0 over training. Evaluations, returns and success rates use the env
@@ -84,6 +89,9 @@ class PPOConfig:
     lagrangian_lr: float = 0.05  # Lagrangian: multiplier step size
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
     novelty_bonus: float = 0.0  # episodic bonus per new (cell, carrying) pair, annealed to 0
+    # end the training episode where the shaping signal fires (shaped: a violation; checker:
+    # an alarm), as well as subtracting the penalty: the agent loses the episode's future
+    end_episode: bool = False
     eval_every: int = 10  # updates between evaluations (one chunk)
     eval_episodes: int = 50  # fixed-seed episodes per evaluation
     eval_seed: int = 20_200_207  # key of the evaluation episodes, shared by every method

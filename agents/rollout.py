@@ -147,16 +147,10 @@ def env_step(
     violation = violation_of(ts)
 
     alarm = prob = jnp.zeros_like(ts.reward)
-    frames = carry.frames
     if checker is not None:
         emb = embed(checker, final["image"])
         prob = checker_prob(checker, lang, carry.frames, emb)
         alarm = (prob > c.checker_threshold).astype(jnp.float32)
-        # Append the returned observation: the final one where the episode goes on; where it
-        # ended, the window restarts at the next episode's first observation, which only those
-        # few envs embed.
-        emb = masked_map(done, lambda i: embed(checker, i), ts.observation["image"], emb)
-        frames = push_frames(checker, carry.frames, emb, done, env.view_size)
     signal = prob if c.soft_checker else alarm
     cost = jnp.zeros_like(ts.reward)
     reward = ts.reward
@@ -166,6 +160,20 @@ def env_step(
         reward = reward - penalty * signal
     elif c.reward_mode == "lagrangian":
         cost = signal
+    if c.end_episode and c.reward_mode in ("shaped", "checker"):
+        # The learner ends the episode where the signal fired: a terminal step, then a fresh
+        # episode, as if the env had ended it.
+        ended = (violation if c.reward_mode == "shaped" else alarm > 0) & ~done
+        states, restarted = env.restart(states, ts.observation, ended)
+        ts = ts.replace(observation=restarted, terminated=ts.terminated | ended)
+        done = done | ended
+    frames = carry.frames
+    if checker is not None:
+        # Append the returned observation: the final one where the episode goes on; where it
+        # ended, the window restarts at the next episode's first observation, which only those
+        # few envs embed.
+        emb = masked_map(done, lambda i: embed(checker, i), ts.observation["image"], emb)
+        frames = push_frames(checker, carry.frames, emb, done, env.view_size)
     # Novelty: the step reached a (cell, carrying) pair new to this episode. Where the episode
     # ended, ``states`` is the next episode's start, whose visit opens a new set.
     hit = visits(states, env.width, env.height, c.novelty_bonus != 0)

@@ -92,6 +92,21 @@ class BatchedAutoReset(struct.PyTreeNode):
         return states, ts.replace(observation=obs, info=info)
 
 
+    def restart(self, states: State, obs: dict, mask: jax.Array) -> tuple[State, dict]:
+        """Fresh episodes where ``mask`` (an episode ended by the caller, e.g. on a
+        violation), keys split from each state's key as :meth:`step` does; other envs keep
+        their state and observation."""
+        env = self.env
+        key, layout_key = jnp.moveaxis(jax.vmap(jax.random.split)(states.key), 1, 0)
+
+        @jax.vmap
+        def fresh(keys):
+            state = env.generate(keys[0]).replace(key=keys[1])
+            return state, env.observe(state)
+
+        return masked_map(mask, fresh, (layout_key, key), (states, obs))
+
+
 def masked_map(mask: jax.Array, fn, inputs, other, chunk: int = 16):
     """``where(mask, fn(inputs), other)`` row by row, calling ``fn`` on the masked rows only.
 
