@@ -13,9 +13,11 @@ c. **checker**: trained by :func:`checker.train_checker` and measured (test spli
    ``DIR/checker.json``;
 d. **PPO** in every reward mode over ``seeds`` seeds at once (vmapped), evaluated on fixed
    seeds every ``eval_every`` updates, checkpointed, ``DIR/modes/<mode>/``;
-e. **final evaluation** over ``final_episodes`` fixed-seed episodes per seed;
+e. **final evaluation** over ``final_episodes`` fixed-seed episodes per seed (the shield
+   modes twice: with the shield, and the policy alone);
 f. **report**: ``results.json``, ``results.md``, ``curves.png``, ``episodes.gif``,
-   ``metrics.jsonl`` and ``config.json``.
+   ``metrics.jsonl`` and ``config.json``; interquartile means over seeds with stratified
+   bootstrap intervals (:mod:`experiments.stats`).
 
 One process writes into ``--out`` at a time (``--out/.lock``). Every file is written to a
 temporary name and renamed; parameter files carry a sha256 in their JSON sidecar. A damaged
@@ -27,7 +29,9 @@ An :class:`ExperimentConfig` holds the experiment's own sizes, the compared agen
 :class:`~agents.config.PPOConfig` and the checker's :class:`~checker.train.CheckerTrainConfig`;
 each validates its own fields. Sizes come in three presets, overrides of :data:`BASE`:
 ``--quick`` (smoke test, minutes), the default (meaningful results in at most about 30
-minutes on a 2-core CPU) and ``--paper`` (1e7 steps, 5 seeds). The command line is generated
+minutes on a 2-core CPU) and ``--paper`` (1e7 steps, 10 seeds). Every scenario runs the same
+:class:`~agents.config.PPOConfig`: only the env id and the step budgets differ. The command
+line is generated
 from the three dataclasses (:mod:`checker.cli`); ``--help`` lists every flag and its default.
 """
 
