@@ -89,9 +89,11 @@ class ExperimentConfig:
     # The compared agents' PPO (--steps: total_timesteps). Each run sets reward_mode and
     # eval_every (from curve_points); the behaviour agent runs on checker_env_id for
     # behaviour_steps with PPO's default entropy bonus, the novelty bonus only on env_id.
+    # The penalty acts from the first update and ramps up over the first half of training
+    # (docs/decisions.md: a full penalty from the start stops agents before any door).
     ppo: PPOConfig = PPOConfig(num_envs=128, num_steps=64, num_minibatches=4,
                                total_timesteps=1_500_000, eval_every=1,
-                               novelty_bonus=0.01)  # fmt: skip
+                               novelty_bonus=0.01, penalty_warmup=0.5)  # fmt: skip
     # The checker's training (--checker-*): from --seed, and measured at the threshold at
     # which the agents' checker alarms (--checker-threshold).
     checker_train: CheckerTrainConfig = CheckerTrainConfig(epochs=40)

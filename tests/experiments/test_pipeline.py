@@ -90,7 +90,7 @@ def test_presets_keep_the_published_configurations(experiment, name):
     assert got == PUBLISHED[experiment, name]
     assert (ppo.num_steps, ppo.num_minibatches, ppo.update_epochs, ppo.lr, ppo.penalty,
             ppo.penalty_start, ppo.penalty_warmup, ppo.ent_coef, ppo.novelty_bonus, ppo.seed,
-            cfg.gif_episodes) == (64, 4, 4, 1e-3, 1.0, 0.0, 0.1, 0.01, 0.01, 0, 4)  # fmt: skip
+            cfg.gif_episodes) == (64, 4, 4, 1e-3, 1.0, 0.0, 0.5, 0.01, 0.01, 0, 4)  # fmt: skip
     assert (chk.window, chk.lookahead, chk.test_fraction, chk.val_fraction) == (5, 1, 0.15, 0.15)
     assert cfg.modes == REWARD_MODES and (cfg.quick, cfg.paper) == (name == "quick",
                                                                      name == "paper")  # fmt: skip
