@@ -86,6 +86,7 @@ class Shield(struct.PyTreeNode):
         return jax.nn.sigmoid(self.checker.classify(window, codes)).reshape(e, a)
 
     def allowed(self, states, frames: jax.Array, lang: jax.Array):
+        """``(allowed bool (E, A), risk (E, A))``: :func:`allow_least_risky` of :meth:`risk`."""
         risk = self.risk(states, frames, lang)
         return allow_least_risky(risk, self.threshold), risk
 
