@@ -80,14 +80,8 @@ class BatchedAutoReset(struct.PyTreeNode):
         states, ts = jax.vmap(env.step)(states, actions)
         key, layout_key = jnp.moveaxis(jax.vmap(jax.random.split)(states.key), 1, 0)
         done = ts.terminated | ts.truncated
-
-        @jax.vmap
-        def fresh(keys):
-            state = env.generate(keys[0]).replace(key=keys[1])
-            return state, env.observe(state)
-
         old = (states.replace(key=key), ts.observation)
-        states, obs = masked_map(done, fresh, (layout_key, key), old)
+        states, obs = masked_map(done, self._fresh, (layout_key, key), old)
         info = {**ts.info, "final_observation": ts.observation}
         return states, ts.replace(observation=obs, info=info)
 
@@ -96,15 +90,17 @@ class BatchedAutoReset(struct.PyTreeNode):
         """Fresh episodes where ``mask`` (an episode ended by the caller, e.g. on a
         violation), keys split from each state's key as :meth:`step` does; other envs keep
         their state and observation."""
-        env = self.env
         key, layout_key = jnp.moveaxis(jax.vmap(jax.random.split)(states.key), 1, 0)
+        return masked_map(mask, self._fresh, (layout_key, key), (states, obs))
 
-        @jax.vmap
-        def fresh(keys):
-            state = env.generate(keys[0]).replace(key=keys[1])
-            return state, env.observe(state)
+    def _fresh(self, keys):
+        """Fresh episodes (state, observation) of a batch of (layout key, state key) pairs."""
 
-        return masked_map(mask, fresh, (layout_key, key), (states, obs))
+        def one(layout_key, key):
+            state = self.env.generate(layout_key).replace(key=key)
+            return state, self.env.observe(state)
+
+        return jax.vmap(one)(*keys)
 
 
 def masked_map(mask: jax.Array, fn, inputs, other, chunk: int = 16):
