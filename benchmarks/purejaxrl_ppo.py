@@ -25,6 +25,10 @@ not copied), self-contained on jax + flax + optax:
   state) -> ``FlattenObservationWrapper`` -> ``LogWrapper`` (episode return/length
   bookkeeping in ``info``). NAVIX auto-resets inside ``Environment.step``.
 
+``--env MiniGrid-DoorKey-8x8-v0`` (any jaxgrid id) runs the same learner on jaxgrid, its
+egocentric 7x7x3 view flattened (:class:`JaxgridGymnaxEnv`); :func:`machine_baseline` falls
+back to it where NAVIX cannot be imported.
+
 Env: ``navix.make("Navix-DoorKey-8x8-v0", observation_fn=navix.observations.symbolic)``,
 i.e. the fully observable symbolic 8x8x3 uint8 grid flattened to 192 values (symbolic is
 also that env's default observation, which is what PureJaxRL's wrapper gets). The uint8
@@ -130,6 +134,41 @@ class NavixGymnaxEnv:
         return int(self._env.action_space.maximum) + 1
 
 
+class JaxgridGymnaxEnv:
+    """A jaxgrid env behind the same gymnax-style interface, for the same learner on our env.
+
+    The observation is the agent's egocentric ``image`` (the view MiniGrid gives agents;
+    uint8, ``view_size x view_size x 3``); :class:`jaxgrid.wrappers.AutoReset` resets on the
+    step that ends an episode, as NAVIX does. The env's own ``max_steps`` is kept.
+    """
+
+    def __init__(self, env_name: str):
+        import jaxgrid
+        from jaxgrid.wrappers import AutoReset
+
+        self.name = env_name
+        self._env = AutoReset(jaxgrid.make(env_name))
+
+    @property
+    def max_steps(self) -> int:
+        return int(self._env.max_steps)
+
+    def reset(self, key, params=None):
+        state, ts = self._env.reset(key)
+        return ts.observation["image"], state
+
+    def step(self, key, state, action, params=None):
+        state, ts = self._env.step(state, action)
+        done = ts.terminated | ts.truncated
+        return ts.observation["image"], state, ts.reward, done, {}
+
+    def observation_shape(self, params=None) -> tuple[int, ...]:
+        return (self._env.view_size, self._env.view_size, 3)
+
+    def num_actions(self, params=None) -> int:
+        return int(self._env.num_actions)
+
+
 class Wrapper:
     """Base of the gymnax-style wrappers: attribute access falls through to the env."""
 
@@ -194,8 +233,18 @@ class LogWrapper(Wrapper):
 
 
 def make_env(env_name: str = DEFAULT_ENV, **make_kwargs: Any):
-    """PureJaxRL ``ppo_minigrid``'s stack: NAVIX -> FlattenObservation -> LogWrapper."""
-    return LogWrapper(FlattenObservation(NavixGymnaxEnv(env_name, **make_kwargs)))
+    """PureJaxRL ``ppo_minigrid``'s stack: env -> FlattenObservation -> LogWrapper.
+
+    ``Navix-*`` ids are NAVIX envs (the baseline as PureJaxRL runs it); any other id is a
+    :func:`jaxgrid.make` id (the same learner on our env; ``make_kwargs`` are NAVIX's only).
+    """
+    if env_name.startswith("Navix-"):
+        inner = NavixGymnaxEnv(env_name, **make_kwargs)
+    else:
+        if make_kwargs:
+            raise ValueError(f"make_kwargs apply to NAVIX ids only, got {sorted(make_kwargs)}")
+        inner = JaxgridGymnaxEnv(env_name)
+    return LogWrapper(FlattenObservation(inner))
 
 
 # ----------------------------------------------------------------------------- network
@@ -499,6 +548,24 @@ def measure(
     return result
 
 
+def machine_baseline(timesteps: int = 2**19) -> dict[str, Any]:
+    """This machine's reference figure: the PureJaxRL-style learner's steps/s at the default
+    sizes, on NAVIX DoorKey-8x8 where NAVIX imports, else on jaxgrid's DoorKey-8x8 (``env``
+    says which). Experiments print it beside their run time, so that run times from
+    different machines can be compared."""
+    try:
+        import navix  # noqa: F401
+
+        env_name = DEFAULT_ENV
+    except Exception:  # not installed, or not importable with this jax
+        env_name = "MiniGrid-DoorKey-8x8-v0"
+    res = measure(total_timesteps=timesteps, env_name=env_name)
+    impl = "purejaxrl-navix" if env_name == DEFAULT_ENV else "purejaxrl-jaxgrid"
+    return {"impl": impl, "env": env_name, "sps": round(res["sps"], 1),
+            "compile_s": round(res["compile_s"], 2), "device": res["device"],
+            "timesteps": res["total_timesteps"]}  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(
         prog="python -m benchmarks.purejaxrl_ppo",
@@ -516,7 +583,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--num-minibatches", type=int, default=c["NUM_MINIBATCHES"],
                         help="minibatches per epoch")
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed of the run")
+    parser.add_argument("--env", default=DEFAULT_ENV,
+                        help="a Navix-* id (PureJaxRL's setting) or a jaxgrid id, e.g. "
+                             "MiniGrid-DoorKey-8x8-v0 (the same learner on jaxgrid)")
     args = parser.parse_args(argv)
+    if not args.env.startswith("Navix-"):
+        import jaxgrid
+
+        if args.env not in jaxgrid.registered_ids():
+            parser.error(f"--env {args.env!r} is neither a Navix-* id nor a jaxgrid id")
     for name in ("timesteps", "num_envs", "num_steps", "update_epochs", "num_minibatches"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
@@ -534,10 +609,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         update_epochs=args.update_epochs,
         num_minibatches=args.num_minibatches,
         seed=args.seed,
+        env_name=args.env,
     )
     line = {
-        "impl": "purejaxrl-navix",
-        "env": DEFAULT_ENV,
+        "impl": "purejaxrl-navix" if args.env.startswith("Navix-") else "purejaxrl-jaxgrid",
+        "env": args.env,
         "sps": round(res["sps"], 1),
         "compile_s": round(res["compile_s"], 2),
         "device": res["device"],

@@ -86,6 +86,9 @@ class ExperimentConfig:
     quick: bool = False  # the smoke-test preset: every output in minutes, results mean nothing
     paper: bool = False  # the paper's preset: 1e7 steps, 5 seeds
     progress: bool = True  # show progress bars
+    # time the PureJaxRL-style baseline learner (benchmarks.purejaxrl_ppo) for ~30 s at the
+    # end, and print its steps/s beside the run time: run times differ between machines
+    machine_baseline: bool = True
     # The compared agents' PPO (--steps: total_timesteps). Each run sets reward_mode and
     # eval_every (from curve_points); the behaviour agent runs on checker_env_id for
     # behaviour_steps with PPO's default entropy bonus, the novelty bonus only on env_id.
@@ -165,8 +168,8 @@ PRESETS: dict[str, dict] = {
     # Meaningful results within about 30 minutes on a 2-core CPU.
     "default": {},
     # --quick: the outputs and their schema, in minutes; results mean nothing.
-    "quick": dict(quick=True, seeds=2, behaviour_steps=8_192, checker_samples=512,
-                  collect_max_steps=256, curve_points=2, final_episodes=32,
+    "quick": dict(quick=True, machine_baseline=False, seeds=2, behaviour_steps=8_192,
+                  checker_samples=512, collect_max_steps=256, curve_points=2, final_episodes=32,
                   checker_train=dict(epochs=3),
                   ppo=dict(total_timesteps=16_384, num_envs=32, eval_episodes=16)),
     # --paper: the paper's budget (1e7 steps), 10 seeds, 50 evaluation episodes a checkpoint.
@@ -227,6 +230,10 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     keep.update(trained=trained, report=checker_report, runs=runs)
     phases.write_gif(cfg, out, runs, trained)
     results = phases.assemble(cfg, out, runs, checker_report, time.perf_counter() - start)
+    if cfg.machine_baseline:  # after the run, so that it does not delay any phase
+        from benchmarks.purejaxrl_ppo import machine_baseline
+
+        results["timing"]["machine_baseline"] = machine_baseline()
     paths = phases.write_outputs(cfg, out, results, runs)  # f
     from experiments.report import summarise
 

@@ -530,6 +530,18 @@ def _format_duration(seconds: float) -> str:
     return f"{h}h {m:02d}m {s:02d}s" if h else f"{m}m {s:02d}s"
 
 
+def _baseline_note(timing: Mapping) -> str:
+    """`` on a machine where ...``: the baseline learner's figure, when it was measured."""
+    base = timing.get("machine_baseline")
+    if not base:
+        return ""
+    return (
+        f", on a machine where the PureJaxRL-style PPO baseline (`python -m "
+        f"benchmarks.purejaxrl_ppo --env {base['env']}`) runs at {float(base['sps']):,.0f} "
+        f"steps/s ({base['device']})"
+    )
+
+
 def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
     """Validate ``results`` then atomically write ``results.json`` and ``results.md``.
 
@@ -543,7 +555,9 @@ def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
     md = (
         f"# Results: {results['experiment']}\n\n"
         + results_table(results)
-        + f"\nTotal wall time: {_format_duration(float(results['timing']['total_s']))}.\n"
+        + f"\nTotal wall time: {_format_duration(float(results['timing']['total_s']))}"
+        + _baseline_note(results["timing"])
+        + ".\n"
     )
     json_path, md_path = out / "results.json", out / "results.md"
     write_json(json_path, results)

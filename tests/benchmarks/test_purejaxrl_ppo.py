@@ -124,3 +124,28 @@ def test_cli_rejects_bad_flags_before_compiling(argv, flag, capsys):
     with pytest.raises(SystemExit) as exc:
         bench.main(argv)
     assert exc.value.code == 2 and flag in capsys.readouterr().err
+
+
+def test_the_same_learner_runs_on_a_jaxgrid_id():
+    res = bench.measure(total_timesteps=N * T * U, num_envs=N, num_steps=T, update_epochs=EPOCHS,
+                        num_minibatches=MB, env_name="MiniGrid-Empty-5x5-v0",
+                        return_output=True)  # fmt: skip
+    assert res["total_timesteps"] == N * T * U and res["sps"] > 0
+    # The egocentric 7x7x3 view, flattened: 147 uint8 values per observation.
+    env = bench.make_env("MiniGrid-Empty-5x5-v0")
+    obs, _ = env.reset(jax.random.PRNGKey(0))
+    assert obs.shape == (147,) and obs.dtype == jnp.uint8
+    assert env.observation_shape() == (147,) and env.num_actions() == 7
+    done = np.asarray(res["output"]["metrics"]["returned_episode"])
+    assert done.shape == (U, T, N)
+
+
+def test_jaxgrid_ids_take_no_navix_options():
+    with pytest.raises(ValueError, match="NAVIX ids only"):
+        bench.make_env("MiniGrid-Empty-5x5-v0", observation_fn=None)
+
+
+def test_an_unknown_env_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit):
+        bench.main(["--env", "MiniGrid-Nope-v0"])
+    assert "--env 'MiniGrid-Nope-v0'" in capsys.readouterr().err

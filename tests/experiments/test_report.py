@@ -347,6 +347,17 @@ def test_write_report(good, tmp_path):
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["results.json", "results.md"]
 
 
+def test_results_md_names_the_machine_baseline_beside_the_run_time(good, tmp_path):
+    md = write_report(good, tmp_path / "a").md.read_text()
+    assert "Total wall time:" in md and "PureJaxRL" not in md  # not measured: nothing said
+    good["timing"]["machine_baseline"] = {"env": "MiniGrid-DoorKey-8x8-v0", "sps": 61234.5,
+                                          "device": "cpu (2 cores visible)"}  # fmt: skip
+    md = write_report(good, tmp_path / "b").md.read_text()
+    line = next(x for x in md.splitlines() if x.startswith("Total wall time:"))
+    assert "61,234 steps/s" in line and "--env MiniGrid-DoorKey-8x8-v0" in line
+    assert "cpu (2 cores visible)" in line
+
+
 def test_write_report_refuses_invalid(good, tmp_path):
     write_report(good, tmp_path)
     before = (tmp_path / "results.json").read_bytes()
