@@ -37,6 +37,9 @@ class PPOConfig:
     monitor flags. Both shields add ``penalty`` times the policy's own probability of the
     blocked actions to the loss, so that the policy itself learns what was blocked.
 
+    With ``alarm_onset`` the ``checker`` and ``lagrangian`` signals count only the step that
+    raises an alarm, not its repeats while it stays up (an ablation: ``docs/decisions.md``).
+
     The penalty of ``shaped``, ``checker`` and the shields is 0 for the first
     ``penalty_start`` fraction of the updates (0 by default: the constraint acts from the
     first update), then ramps linearly to ``penalty`` over the next ``penalty_warmup``
@@ -85,6 +88,9 @@ class PPOConfig:
     penalty_warmup: float = 0.1  # fraction of the run over which the penalty ramps up
     checker_threshold: float = 0.5  # checker probability above which it alarms
     soft_checker: bool = False  # penalise the checker's probability instead of its alarm
+    # checker, lagrangian: only the step that raises an alarm counts, not its repeats while
+    # the alarm stays up (the ground truth counts a violation once, on entering)
+    alarm_onset: bool = False
     cost_target: float = 0.05  # Lagrangian: alarms per episode to hold
     lagrangian_lr: float = 0.05  # Lagrangian: multiplier step size
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier

@@ -35,6 +35,7 @@ class EnvCarry(struct.PyTreeNode):
     visited: jax.Array  # bool (E, W*H*2): (cell, carrying) pairs seen this episode, or (E, 1)
     ep_return: jax.Array
     ep_length: jax.Array
+    alarmed: jax.Array  # bool (E,): the checker alarmed at the episode's previous step
 
 
 class Transition(struct.PyTreeNode):
@@ -121,8 +122,9 @@ def env_step(
     ``table`` is the int32 (K, L) sentence table, ``words`` its longest sentence's length
     (the checker's GRU reads that many tokens). The training reward is the env reward minus
     ``penalty`` times the ground-truth violation (``shaped``) or the checker's alarm
-    (``checker``; its probability with ``soft_checker``); ``lagrangian`` puts the alarm in
-    the cost instead. The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to
+    (``checker``; its probability with ``soft_checker``; with ``alarm_onset`` only where the
+    previous step of the episode did not alarm); ``lagrangian`` puts the alarm in the cost
+    instead. The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to
     the episode. With a ``shield`` (:class:`agents.shield.Shield`) the action is sampled from
     the policy restricted to the allowed actions, and the mask is kept in the transition.
     Where an episode was cut by the time limit (not terminated), the reward and
@@ -152,6 +154,8 @@ def env_step(
         prob = checker_prob(checker, lang, carry.frames, emb)
         alarm = (prob > c.checker_threshold).astype(jnp.float32)
     signal = prob if c.soft_checker else alarm
+    if c.alarm_onset:  # only the step that raises an alarm, not its repeats while it stays
+        signal = signal * ~carry.alarmed
     cost = jnp.zeros_like(ts.reward)
     reward = ts.reward
     if c.reward_mode == "shaped":
@@ -219,5 +223,6 @@ def env_step(
     carry = EnvCarry(
         state=states, obs=ts.observation, sentence=sentence, frames=frames, visited=visited,
         ep_return=jnp.where(done, 0.0, ep_return), ep_length=jnp.where(done, 0, ep_length),
+        alarmed=(alarm > 0) & ~done,
     )  # fmt: skip
     return carry, (transition, stats)

@@ -124,7 +124,7 @@ class Learner(struct.PyTreeNode):
             state=states, obs=obs, sentence=rollout.sentence_rows(obs, self.table),
             frames=frames, visited=rollout.visits(states, env.width, env.height,
                                                   c.novelty_bonus != 0),
-            ep_return=zeros, ep_length=zeros.astype(jnp.int32),
+            ep_return=zeros, ep_length=zeros.astype(jnp.int32), alarmed=zeros > 0,
         )  # fmt: skip
         return RunnerState(
             params=params,

@@ -246,3 +246,23 @@ def test_terminal_step_on_the_time_limit_is_not_bootstrapped():
         tr.reward[only], reward[only] + config.gamma * v_final[only], rtol=1e-5, atol=1e-6
     )
 
+
+
+def test_alarm_onset_penalises_only_the_step_that_raises_the_alarm(rollouts, tiny_checker):
+    runner0, out = rollouts
+    learner, _, _, ref = out["checker"]
+    prob = ref["prob"]
+    threshold = float(np.median(prob))  # about half the steps alarm: repeats are sure
+    c = dataclasses.replace(learner.config, alarm_onset=True, checker_threshold=threshold)
+    tr, _ = step_by_step(make_learner(c, tiny_checker), runner0)
+    np.testing.assert_array_equal(tr.action, out["checker"][1].action)  # the same steps
+    alarm = prob > threshold
+    done = ref["terminated"] | ref["truncated"]
+    # The episode's previous step alarmed (a fresh episode starts without one).
+    before = np.concatenate([np.zeros_like(alarm[:1]), (alarm & ~done)[:-1]])
+    onset = alarm & ~before
+    assert (alarm & before).sum() >= 5  # repeated alarms happen, and are not penalised
+    bootstrap = c.gamma * (ref["truncated"] & ~ref["terminated"]) * ref["v_final"]
+    expected = ref["reward"] - c.penalty * onset + bootstrap
+    clear = np.abs(prob - threshold) > 1e-4
+    np.testing.assert_allclose(tr.reward[clear], expected[clear], atol=1e-5)
