@@ -301,10 +301,12 @@ def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
         print(f"error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
     cfg = parse_args(argv, scenario_cfg)
-    if cfg.quick:  # a smoke test is all compile time: skip LLVM's optimisations (same results)
-        flag = "--xla_backend_optimization_level=0"
-        if flag not in os.environ.get("XLA_FLAGS", ""):  # read when the CPU backend starts
-            os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip()
+    if cfg.quick:  # a smoke test is all compile time: cheaper compiles (LLVM's optimisations
+        # off, XLA:CPU's per-op emitters; float results may differ in the last place). XLA
+        # reads the flags when the CPU backend starts.
+        for flag in ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false"):
+            if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
+                os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip()
     if cfg.out is None:
         cfg = dataclasses.replace(cfg, out=default_out(cfg.experiment))
     try:
