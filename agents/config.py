@@ -17,6 +17,9 @@ import jaxgrid
 # In display order: the paper's method first, then its baselines, then the shields (tables
 # and figures use it).
 REWARD_MODES = ("checker", "shaped", "none", "lagrangian", "shield", "shield_monitor")
+# Hyperparameters that can differ between the agents of one compiled program (a sweep):
+# they become traced per-agent values (``RunnerState.hparams``) instead of constants.
+SWEEPABLE = ("penalty", "checker_threshold", "cost_target", "ent_coef", "lr")
 # Modes whose actions pass through a shield (agents.shield), and the judge of each.
 SHIELD_JUDGES = {"shield": "checker", "shield_monitor": "monitor"}
 
@@ -215,3 +218,25 @@ def check_checker(config: PPOConfig, checker, env) -> None:
         raise ValueError(
             f"checker view_size {checker.config.view_size} != env view_size {env.view_size}"
         )
+
+
+def check_sweep(sweep, config: PPOConfig | None = None) -> dict[str, tuple[float, ...]]:
+    """``sweep`` {name: values} as {name: distinct floats} in the given order ({} for None).
+
+    ``ValueError`` naming the problem for a name not in :data:`SWEEPABLE`, no or repeated
+    values, or a value that ``config`` (default: the defaults) would refuse.
+    """
+    out = {}
+    for name, values in (sweep or {}).items():
+        if name not in SWEEPABLE:
+            raise ValueError(f"cannot sweep {name!r}: sweepable are {', '.join(SWEEPABLE)}")
+        try:
+            values = tuple(float(v) for v in values)
+        except (TypeError, ValueError):
+            raise ValueError(f"sweep {name}: values must be numbers, got {values!r}") from None
+        if not values or len(set(values)) != len(values):
+            raise ValueError(f"sweep {name}: give distinct values, got {list(values)}")
+        for v in values:  # each value must make a valid config on its own
+            dataclasses.replace(config or PPOConfig(), **{name: v})
+        out[name] = values
+    return out

@@ -57,6 +57,7 @@ def ppo_loss(
     lagrange: jax.Array,
     config: PPOConfig,
     blocked_weight: jax.Array | float = 0.0,
+    ent_coef: jax.Array | float | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Clipped PPO loss of one minibatch, with the cost critic in the Lagrangian mode.
 
@@ -68,7 +69,8 @@ def ppo_loss(
     value losses are clipped as in PPO2. With a shield's bool (B, A) ``allowed`` in ``batch``,
     the policy is the one that acted, restricted to the allowed actions, and
     ``blocked_weight`` times the unrestricted policy's probability of the blocked actions is
-    added, so that the policy learns to avoid them itself. Returns ``(loss, statistics)``.
+    added, so that the policy learns to avoid them itself. ``ent_coef`` (None: the config's)
+    may be a traced per-agent value. Returns ``(loss, statistics)``.
     """
     c = config
     logits, value, cost_value = policy(
@@ -98,7 +100,8 @@ def ppo_loss(
     cv_loss = jnp.zeros(())
     if c.reward_mode == "lagrangian":
         cv_loss = value_loss(cost_value, batch["cost_value"], batch["cost_target"])
-    total = actor_loss + c.vf_coef * (v_loss + cv_loss) - c.ent_coef * entropy
+    ent_coef = c.ent_coef if ent_coef is None else ent_coef
+    total = actor_loss + c.vf_coef * (v_loss + cv_loss) - ent_coef * entropy
     total = total + blocked_weight * blocked
     approx_kl = jnp.mean((ratio - 1.0) - jnp.log(ratio))
     return total, {

@@ -116,6 +116,7 @@ def env_step(
     shield=None,
     penalty: jax.Array | float,
     novelty: jax.Array | float,
+    threshold: jax.Array | float | None = None,
 ) -> tuple[EnvCarry, tuple[Transition, dict]]:
     """One rollout step of every env: act, step, shape the reward, bootstrap truncations.
 
@@ -129,7 +130,8 @@ def env_step(
     the policy restricted to the allowed actions, and the mask is kept in the transition.
     Where an episode was cut by the time limit (not terminated), the reward and
     cost add ``gamma`` times the final observation's values, so GAE treats the step as
-    terminal without losing the future. Returns the next carry and (transition, statistics).
+    terminal without losing the future. ``threshold`` (None: ``checker_threshold``) may be a
+    traced per-agent value. Returns the next carry and (transition, statistics).
     """
     c = config
     obs = carry.obs
@@ -152,7 +154,8 @@ def env_step(
     if checker is not None:
         emb = embed(checker, final["image"])
         prob = checker_prob(checker, lang, carry.frames, emb)
-        alarm = (prob > c.checker_threshold).astype(jnp.float32)
+        threshold = c.checker_threshold if threshold is None else threshold
+        alarm = (prob > threshold).astype(jnp.float32)
     signal = prob if c.soft_checker else alarm
     if c.alarm_onset:  # only the step that raises an alarm, not its repeats while it stays
         signal = signal * ~carry.alarmed

@@ -13,25 +13,33 @@ named ``"envs"``; parameters, optimiser state and keys are replicated. XLA parti
 rollout and inserts the collectives of the minibatch shuffle. For several hosts, call
 ``jax.distributed.initialize()`` in every process before :func:`run`: the mesh is then
 built over ``jax.devices()`` (all hosts) instead of the local ones (``multi_host=True``).
+Every process calls :func:`run` with the same arguments and gets the same records and
+(replicated) parameters, the same numbers as one process with as many devices; process 0
+alone writes ``out_dir``'s logs (a directory all hosts share) and shows progress. The
+returned ``runner``'s env leaves stay split over the processes
+(``jax.experimental.multihost_utils.process_allgather`` gathers them).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import itertools
 import json
 import os
 import time
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from agents.config import PPOConfig
+from agents.config import PPOConfig, check_sweep
 from agents.evaluation import summarise
 from agents.train import Learner, RunnerState, make_learner
 from jaxgrid import io
@@ -70,6 +78,7 @@ def _shardings(runner: RunnerState, mesh: Mesh):
         key=replicated,
         update=replicated,
         env=jax.tree.map(lambda _: split, runner.env),
+        hparams=jax.tree.map(lambda _: replicated, runner.hparams),
     )
 
 
@@ -83,7 +92,15 @@ def _finite(tree) -> jax.Array:
 
 
 def _host(x) -> Any:
-    return jax.tree.map(lambda a: np.asarray(a), x)
+    """``x`` as numpy arrays. An array split over several processes is gathered from all of
+    them: a collective, which every process reaches in the same order (same program)."""
+
+    def get(a):
+        if isinstance(a, jax.Array) and not (a.is_fully_addressable or a.is_fully_replicated):
+            return np.asarray(multihost_utils.process_allgather(a, tiled=True))
+        return np.asarray(a)
+
+    return jax.tree.map(get, x)
 
 
 EARLY_FRACTION = 0.2  # "early in training": training violations are also split there
@@ -95,9 +112,11 @@ def early_updates(config: PPOConfig) -> int:
 
 
 def chunk_records(
-    config: PPOConfig, chunk: int, seeds: Sequence[int], metrics, totals: np.ndarray
+    config: PPOConfig, chunk: int, seeds: Sequence[int], metrics, totals: np.ndarray,
+    swept: dict[str, Sequence[float]] | None = None,
 ) -> list[dict]:
-    """One JSON-serialisable record per seed for chunk ``chunk`` (0-based)."""
+    """One JSON-serialisable record per agent for chunk ``chunk`` (0-based); ``seeds`` and
+    the ``swept`` hyperparameters' values are per agent (the record holds both)."""
     train, evaluation = metrics["train"], metrics["eval"]
     step = (chunk + 1) * config.eval_every * config.batch_size
     # Updates in the first EARLY_FRACTION of training (its first env steps).
@@ -109,6 +128,7 @@ def chunk_records(
         records.append(
             {
                 "seed": int(seed),
+                **{name: float(values[i]) for name, values in (swept or {}).items()},
                 "chunk": chunk,
                 "update": (chunk + 1) * config.eval_every,
                 "step": step,
@@ -149,8 +169,13 @@ def run(
     final_episodes: int = 0,
     desc: str | None = None,
     max_chunks: int | None = None,
+    sweep: Mapping[str, Sequence[float]] | None = None,
 ) -> dict:
     """Train ``len(seeds)`` agents at once (vmapped); return their histories and parameters.
+
+    With ``sweep`` {name: values} (names of :data:`agents.config.SWEEPABLE`) every seed runs
+    with every combination of the values, all in the same compiled program: agents are
+    ordered by combination (the first name's values outermost), then by seed.
 
     Args:
         config: the run (``config.seed`` is ignored: ``seeds`` are used).
@@ -163,11 +188,17 @@ def run(
             ``ValueError`` if it was made with another config or other seeds, a
             :class:`ResumeError` if it was made with another checker or its files are
             damaged); ``False`` deletes its checkpoints and starts over.
+        multi_host: split the env batch over the devices of every process that joined
+            ``jax.distributed`` (module docstring); each process calls ``run`` alike.
         final_episodes: if > 0, a final evaluation over this many fixed-seed episodes.
         max_chunks: stop after this many chunks in this call (simulates an interruption;
             the checkpoint lets a later call resume).
+        sweep: hyperparameter values swept in the same program (see above); a resume must
+            name the same ones.
 
     Returns a dict with ``steps`` (num_chunks,), ``eval`` {metric: (seeds, chunks)},
+    (an axis ``seeds`` has one entry per agent), ``seeds`` (the seed of each agent) and,
+    with a sweep, ``sweep`` {name: (agents,) values};
     ``train_violations`` (seeds,) and ``train_violations_early`` (seeds,: in the first
     :data:`EARLY_FRACTION` of the updates), ``records`` (the JSONL records), ``params`` (stacked
     over seeds), ``final`` {metric: (seeds,)} when ``final_episodes`` (in the shield modes
@@ -190,15 +221,25 @@ def run(
         raise ValueError(f"checkpoint_every must be >= 0, got {checkpoint_every}")
     if max_chunks is not None and max_chunks < 0:
         raise ValueError(f"max_chunks must be >= 0 or None, got {max_chunks}")
-    programs = _programs(config, checker, multi_host)
+    sweep = check_sweep(sweep, config)
+    grid = list(itertools.product(*sweep.values()))  # [()] without a sweep
+    swept = {n: [v[j] for v in grid for _ in seeds] for j, n in enumerate(sweep)}
+    idents = [(s, *v) for v in grid for s in seeds]  # one per agent
+    ident = functools.partial(_ident, names=tuple(sweep))
+    seeds = [s for _ in grid for s in seeds]  # the seed of each agent
+    programs = _programs(config, checker, multi_host, tuple(sweep))
     learner: Learner = programs.learner
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
+    # Under jax.distributed every process runs this function; process 0 alone writes the
+    # logs and shows progress (orbax coordinates the checkpoint writes of all of them).
+    primary = jax.process_index() == 0
     start = time.perf_counter()
 
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
-    abstract = jax.eval_shape(jax.vmap(learner.init), keys)
+    hparams = {n: jnp.asarray(v, jnp.float32) for n, v in swept.items()}
+    abstract = jax.eval_shape(jax.vmap(learner.init), keys, hparams)
     shardings = programs.shardings
     init, chunk = programs.init, programs.chunk
 
@@ -210,12 +251,12 @@ def run(
         runner = None
         if manager is not None and manager.latest_step() is not None:
             if resume:
-                _check_run_info(out, config, seeds, checker)
+                _check_run_info(out, config, seeds, checker, sweep)
                 done_chunks = _verified_step(manager, out)
                 runner = _restore(manager, done_chunks, abstract, shardings)
-                records = _read_records(out / "metrics.jsonl", done_chunks, seeds)
+                records = _read_records(out / "metrics.jsonl", done_chunks, idents, ident)
                 for r in records:
-                    i = seeds.index(r["seed"])
+                    i = idents.index(ident(r))
                     totals[i] = max(totals[i], r["train/cum_violations"])
             else:
                 # A fresh run: orbax would silently refuse to overwrite an existing step
@@ -223,12 +264,14 @@ def run(
                 for step in manager.all_steps():
                     manager.delete(step)
         if runner is None:
-            runner = init(keys)
-        if out is not None:
-            _write_run_info(out, config, seeds, checker)
+            runner = init(keys, hparams)
+        if out is not None and primary:
+            _write_run_info(out, config, seeds, checker, sweep)
             io.write_jsonl(out / "metrics.jsonl", records)
 
-        bar = _progress(config.num_chunks, done_chunks, progress, desc or config.reward_mode)
+        bar = _progress(
+            config.num_chunks, done_chunks, progress and primary, desc or config.reward_mode
+        )
         stop = (
             config.num_chunks
             if max_chunks is None
@@ -236,43 +279,51 @@ def run(
         )
         for c in range(done_chunks, stop):
             new_runner, metrics, finite = chunk(runner)
-            metrics, finite = _host(metrics), np.asarray(finite)
+            metrics, finite = _host(metrics), _host(finite)
             if not finite.all():
-                bad = [seeds[i] for i in np.flatnonzero(~finite)]
+                bad = [idents[i] for i in np.flatnonzero(~finite)]
+                bad = [i[0] for i in bad] if not sweep else [_name(i, sweep) for i in bad]
                 raise NonFiniteError(
                     f"non-finite loss or parameters within updates {c * config.eval_every + 1}-"
                     f"{(c + 1) * config.eval_every} (seeds {bad}); {_kept(manager, out)}"
                 )
             runner = new_runner
             totals += metrics["train"]["violations"].sum(axis=1).astype(np.int64)
-            new = chunk_records(config, c, seeds, metrics, totals)
+            new = chunk_records(config, c, seeds, metrics, totals, swept)
             records.extend(new)
-            if out is not None:
+            if out is not None and primary:
                 io.append_jsonl(out / "metrics.jsonl", new)
             last = c + 1 == config.num_chunks
             if manager is not None and ((c + 1) % checkpoint_every == 0 or last):
                 if not manager.save(c + 1, args=_save_args(runner)):
                     raise RuntimeError(f"orbax did not save checkpoint {c + 1} in {out}")
                 manager.wait_until_finished()
-                _record_digests(manager, out)
+                if primary:
+                    _record_digests(manager, out)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(
                     viol=f"{np.mean([r['eval/violation_rate'] for r in new]):.2f}",
                     succ=f"{np.mean([r['eval/success_rate'] for r in new]):.2f}",
                 )
+        if out is not None and jax.process_count() > 1:
+            # No process leaves (and, say, resumes) before process 0 has written its files.
+            multihost_utils.sync_global_devices("agents.runner.run: files written")
     finally:
         if bar is not None:
             bar.close()
         if manager is not None:
             manager.close()
 
-    result = _collect(config, seeds, records)
+    result = _collect(config, idents, records, ident)
+    result["seeds"] = seeds
+    if sweep:
+        result["sweep"] = {n: np.asarray(v) for n, v in swept.items()}
     result["params"] = runner.params
     result["runner"] = runner
     result["complete"] = stop == config.num_chunks
     if final_episodes:
-        result["final"] = _host(programs.final(final_episodes)(runner.params))
+        result["final"] = _host(programs.final(final_episodes)(runner.params, runner.hparams))
         result["final_episodes"] = final_episodes
     result["wall_s"] = time.perf_counter() - start
     return result
@@ -285,10 +336,11 @@ class _Programs:
     configuration, e.g. to resume, to add seeds or from a sweep, does not compile again.
     """
 
-    def __init__(self, config: PPOConfig, checker, multi_host: bool):
+    def __init__(self, config: PPOConfig, checker, multi_host: bool, swept: tuple = ()):
         learner = make_learner(config, checker)
         mesh = _mesh(config.num_envs, multi_host)
-        abstract = jax.eval_shape(jax.vmap(learner.init), jax.random.PRNGKey(0)[None])
+        hparams = {n: jnp.zeros((1,), jnp.float32) for n in swept}
+        abstract = jax.eval_shape(jax.vmap(learner.init), jax.random.PRNGKey(0)[None], hparams)
         # Explicit shardings on one device too: the arrays orbax restores are committed to
         # a device, the output of a jit without out_shardings is not, and jit would compile
         # the chunk again for the resumed (committed) runner state.
@@ -313,8 +365,9 @@ class _Programs:
         if num_episodes not in self._final:
             config, learner = self.learner.config, self.learner
             key = jax.random.PRNGKey(config.eval_seed + 1)
-            def final(params):
-                out = summarise(learner.evaluate(params, key, num_episodes))
+            def final(params, hparams):
+                threshold = hparams.get("checker_threshold")
+                out = summarise(learner.evaluate(params, key, num_episodes, threshold=threshold))
                 if learner.shield is not None:  # the policy alone, too
                     off = learner.evaluate(params, key, num_episodes, shielded=False)
                     out["unshielded"] = summarise(off)
@@ -328,13 +381,13 @@ _PROGRAMS: OrderedDict = OrderedDict()
 _MAX_PROGRAMS = 4
 
 
-def _programs(config: PPOConfig, checker, multi_host: bool) -> _Programs:
+def _programs(config: PPOConfig, checker, multi_host: bool, swept: tuple = ()) -> _Programs:
     devices = jax.devices() if multi_host else jax.local_devices()
-    key = (config, None if checker is None else id(checker), tuple(d.id for d in devices))
+    key = (config, None if checker is None else id(checker), tuple(d.id for d in devices), swept)
     if key in _PROGRAMS:
         _PROGRAMS.move_to_end(key)  # config and checker were validated when it was built
         return _PROGRAMS[key]
-    programs = _Programs(config, checker, multi_host)
+    programs = _Programs(config, checker, multi_host, swept)
     _PROGRAMS[key] = programs
     while len(_PROGRAMS) > _MAX_PROGRAMS:
         _PROGRAMS.popitem(last=False)
@@ -362,17 +415,23 @@ def _checker_sha256(checker) -> str | None:
     return sha256_bytes(serialization.to_bytes(jax.device_get(checker.params)))
 
 
-def _run_info(config: PPOConfig, seeds: list[int], checker=None) -> dict:
+def _run_info(config: PPOConfig, seeds: list[int], checker=None, sweep=None) -> dict:
     fields = {k: v for k, v in dataclasses.asdict(config).items() if k != "seed"}
     info = {"config": fields, "seeds": seeds, "checker_sha256": _checker_sha256(checker)}
+    if sweep:  # absent without a sweep: run.json as before
+        info["sweep"] = {n: [float(v) for v in values] for n, values in sweep.items()}
     return json.loads(json.dumps(info, default=repr))
 
 
-def _write_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None) -> None:
-    io.write_json(out / "run.json", _run_info(config, seeds, checker))
+def _write_run_info(
+    out: Path, config: PPOConfig, seeds: list[int], checker=None, sweep=None
+) -> None:
+    io.write_json(out / "run.json", _run_info(config, seeds, checker, sweep))
 
 
-def _check_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None) -> None:
+def _check_run_info(
+    out: Path, config: PPOConfig, seeds: list[int], checker=None, sweep=None
+) -> None:
     """Refuse to resume a run made with another configuration or other seeds (``ValueError``)
     and a damaged, missing or other checker's ``run.json`` (:class:`ResumeError`)."""
     path = out / "run.json"
@@ -385,10 +444,15 @@ def _check_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None
                           f"be matched to a configuration; {start_over}") from None  # fmt: skip
     except (ValueError, TypeError, KeyError) as e:
         raise ResumeError(f"{path}: damaged ({e}); {start_over}") from None
-    now = _run_info(config, seeds, checker)
+    now = _run_info(config, seeds, checker, sweep)
     if saved.get("checker_sha256") != now["checker_sha256"]:
         raise ResumeError(f"{path}: the run in {out} was made with another checker; "
                           f"{start_over}")  # fmt: skip
+    if saved.get("sweep") != now.get("sweep"):
+        raise ValueError(
+            f"cannot resume {out}: it was run with sweep {saved.get('sweep')}, not "
+            f"{now.get('sweep')} (pass resume=False to start over, or another out_dir)"
+        )
     if saved["seeds"] != now["seeds"]:
         raise ValueError(
             f"cannot resume {out}: it was run with seeds {saved['seeds']}, not {seeds} "
@@ -407,9 +471,20 @@ def _check_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None
 
 
 # ----------------------------------------------------------------------------------------
-def _collect(config: PPOConfig, seeds: list[int], records: list[dict]) -> dict:
+def _ident(record: dict, names: tuple = ()) -> tuple:
+    """The agent a record belongs to: its seed and swept values."""
+    return (record["seed"], *(record[n] for n in names))
+
+
+def _name(ident: tuple, sweep: Mapping) -> str:
+    values = [f"{n}={v}" for n, v in zip(sweep, ident[1:], strict=True)]
+    return ", ".join([f"seed {ident[0]}", *values])
+
+
+def _collect(config: PPOConfig, seeds: list[tuple], records: list[dict], ident=_ident) -> dict:
+    """Per-agent histories; ``seeds`` are the agents' :func:`_ident` tuples."""
     chunks = sorted({r["chunk"] for r in records})
-    by = {(r["seed"], r["chunk"]): r for r in records}
+    by = {(ident(r), r["chunk"]): r for r in records}
     keys = ("eval/violation_rate", "eval/mean_reward", "eval/success_rate")
     evaluation = {
         k.split("/")[1]: np.array([[by[s, c][k] for c in chunks] for s in seeds]) for k in keys
@@ -515,7 +590,7 @@ def _restore(manager, step, abstract, shardings):
                           f"({type(e).__name__}: {e}); delete it to start over") from e
 
 
-def _read_records(path: Path, chunks: int, seeds: list[int]) -> list[dict]:
+def _read_records(path: Path, chunks: int, seeds: list[tuple], ident=_ident) -> list[dict]:
     """The records of the first ``chunks`` chunks of every seed; all of them must be there
     (:class:`ResumeError` naming the file otherwise: the checkpoint outran its records)."""
     try:
@@ -525,7 +600,12 @@ def _read_records(path: Path, chunks: int, seeds: list[int]) -> list[dict]:
     except (ValueError, TypeError, KeyError) as e:
         raise ResumeError(f"{path}: damaged ({e}); delete it and the checkpoints beside it "
                           "to start over") from None  # fmt: skip
-    have = {(r.get("seed"), r["chunk"]) for r in records}
+    have = set()
+    for r in records:
+        try:
+            have.add((ident(r), r["chunk"]))
+        except KeyError:  # a record of another agent layout: not one of ours
+            pass
     missing = [(s, c) for s in seeds for c in range(chunks) if (s, c) not in have]
     if missing:
         raise ResumeError(

@@ -64,7 +64,8 @@ class Shield(struct.PyTreeNode):
 
     env: Any = struct.field(pytree_node=False)
     judge: str = struct.field(pytree_node=False)
-    threshold: float = struct.field(pytree_node=False, default=0.5)
+    # A leaf, so that agents swept over it in one program can each have their own.
+    threshold: float | jax.Array = 0.5
     checker: Any = None
 
     def candidates(self, states):

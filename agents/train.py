@@ -30,7 +30,7 @@ import optax
 from jax import lax
 
 from agents import rollout
-from agents.config import PPOConfig, check_checker
+from agents.config import SWEEPABLE, PPOConfig, check_checker
 from agents.evaluation import play_episodes, summarise
 from agents.losses import gae, ppo_loss, shuffle
 from agents.networks import ActorCritic, apply_policy, table_features
@@ -47,6 +47,9 @@ class RunnerState(struct.PyTreeNode):
     key: jax.Array
     update: jax.Array  # int32 number of updates done
     env: EnvCarry
+    # float32 values of the swept hyperparameters (names of SWEEPABLE) where they differ
+    # between the agents of one program; every other one is the config's constant.
+    hparams: dict = struct.field(default_factory=dict)
 
 
 class Learner(struct.PyTreeNode):
@@ -94,9 +97,22 @@ class Learner(struct.PyTreeNode):
         done = (update + 1 - start) / warmup if warmup > 0 else (update + 1 > start) * 1.0
         return jnp.clip(done, 0.0, 1.0)
 
-    def penalty_at(self, update: jax.Array) -> jax.Array:
-        """The shaping penalty of update ``update`` (0-based): 0, a ramp, then ``penalty``."""
-        return (self.config.penalty * self.constraint_ramp(update)).astype(jnp.float32)
+    def penalty_at(self, update: jax.Array, penalty: jax.Array | float | None = None):
+        """The shaping penalty of update ``update`` (0-based): 0, a ramp, then ``penalty``
+        (None: the config's)."""
+        penalty = self.config.penalty if penalty is None else penalty
+        return (penalty * self.constraint_ramp(update)).astype(jnp.float32)
+
+    def hparam(self, runner: RunnerState, name: str):
+        """The agent's value of hyperparameter ``name``: traced where swept, else the
+        config's constant (so that a run without a sweep compiles the same program)."""
+        return runner.hparams[name] if name in runner.hparams else getattr(self.config, name)
+
+    def shield_of(self, runner: RunnerState):
+        """The shield with the agent's ``checker_threshold`` (None outside the shield modes)."""
+        if self.shield is None or "checker_threshold" not in runner.hparams:
+            return self.shield
+        return self.shield.replace(threshold=runner.hparams["checker_threshold"])
 
     def novelty_at(self, update: jax.Array) -> jax.Array:
         """The novelty bonus of update ``update``: ``novelty_bonus`` annealed linearly to 0
@@ -105,7 +121,13 @@ class Learner(struct.PyTreeNode):
         return (c.novelty_bonus * (1.0 - update / c.num_updates)).astype(jnp.float32)
 
     # -- init ---------------------------------------------------------------------------
-    def init(self, key: jax.Array) -> RunnerState:
+    def init(self, key: jax.Array, hparams: dict | None = None) -> RunnerState:
+        """A fresh run from ``key``; ``hparams`` {name: value} sets swept hyperparameters
+        (names of :data:`agents.config.SWEEPABLE`) for this agent."""
+        hparams = dict(hparams or {})
+        unknown = sorted(set(hparams) - set(SWEEPABLE))
+        if unknown:
+            raise ValueError(f"cannot sweep {unknown}: sweepable are {', '.join(SWEEPABLE)}")
         c, env = self.config, self.env
         key, net_key, env_key = jax.random.split(key, 3)
         states, ts = self.envs.reset(jax.random.split(env_key, c.num_envs))
@@ -133,6 +155,7 @@ class Learner(struct.PyTreeNode):
             key=key,
             update=jnp.zeros((), jnp.int32),
             env=carry,
+            hparams={k: jnp.asarray(v, jnp.float32) for k, v in hparams.items()},
         )
 
     # -- rollout and update -------------------------------------------------------------
@@ -144,8 +167,10 @@ class Learner(struct.PyTreeNode):
         step = functools.partial(
             rollout.env_step, config=self.config, env=self.envs,
             policy=self.policy(runner.params, lang_table), table=self.table, words=self.words,
-            checker=self.checker, shield=self.shield, penalty=self.penalty_at(runner.update),
+            checker=self.checker, shield=self.shield_of(runner),
+            penalty=self.penalty_at(runner.update, self.hparam(runner, "penalty")),
             novelty=self.novelty_at(runner.update),
+            threshold=self.hparam(runner, "checker_threshold"),
         )  # fmt: skip
         keys = jax.random.split(key, self.config.num_steps)
         env, (traj, stats) = lax.scan(step, runner.env, keys)
@@ -162,11 +187,15 @@ class Learner(struct.PyTreeNode):
             env.obs["image"], env.obs["direction"], env.sentence
         )
         batch = self.training_batch(traj, last_value, last_cost_value)
-        blocked_weight = self.penalty_at(runner.update) if self.shield is not None else 0.0
+        penalty = self.penalty_at(runner.update, self.hparam(runner, "penalty"))
+        blocked_weight = penalty if self.shield is not None else 0.0
+        ent_coef = self.hparam(runner, "ent_coef")
+        # A swept learning rate scales the optimiser's step (Adam's step is linear in it).
+        lr_scale = runner.hparams["lr"] / c.lr if "lr" in runner.hparams else None
 
         def loss(params, mb, lagrange):
             policy = lambda p, *x: self.policy(p)(*x)
-            return ppo_loss(policy, params, mb, lagrange, c, blocked_weight)
+            return ppo_loss(policy, params, mb, lagrange, c, blocked_weight, ent_coef)
 
         def epoch(carry, k):
             params, opt_state = carry
@@ -179,6 +208,8 @@ class Learner(struct.PyTreeNode):
                 params, opt_state = carry
                 grads, info = jax.grad(loss, has_aux=True)(params, mb, runner.lagrange)
                 updates, opt_state = self.optimizer.update(grads, opt_state, params)
+                if lr_scale is not None:
+                    updates = jax.tree.map(lambda u: u * lr_scale, updates)
                 return (optax.apply_updates(params, updates), opt_state), info
 
             return lax.scan(minibatch, (params, opt_state), shuffled)
@@ -220,7 +251,7 @@ class Learner(struct.PyTreeNode):
         episode_cost = stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
         lagrange = runner.lagrange
         if c.reward_mode == "lagrangian":
-            step = c.lagrangian_lr * (episode_cost - c.cost_target)
+            step = c.lagrangian_lr * (episode_cost - self.hparam(runner, "cost_target"))
             # Held at its start value until the constraint switches on (whatever ``penalty``).
             active = self.constraint_ramp(runner.update) > 0
             lagrange = jnp.where(active, jnp.maximum(0.0, lagrange + step), lagrange)
@@ -251,14 +282,19 @@ class Learner(struct.PyTreeNode):
             logits = mask_logits(logits, allowed)
         return jax.random.categorical(key, logits)
 
-    def evaluate(self, params, key, num_episodes: int, env=None, shielded: bool = True):
+    def evaluate(
+        self, params, key, num_episodes: int, env=None, shielded: bool = True, threshold=None
+    ):
         """Per-episode results of :func:`agents.evaluation.play_episodes` (fixed ``key`` =
         fixed episodes) on the raw env (or ``env``): in the shield modes with the shield on
-        (as deployed) unless ``shielded`` is False (the policy alone)."""
+        (as deployed; at ``threshold``, None: the config's) unless ``shielded`` is False
+        (the policy alone)."""
         env = self.env if env is None else env
         if self.shield is None or not shielded:
             return play_episodes(env, lambda o, k: self.act(params, o, k), key, num_episodes)
         shield = self.shield.replace(env=env)
+        if threshold is not None:
+            shield = shield.replace(threshold=threshold)
         act = lambda o, k, allowed: self.act(params, o, k, allowed)  # noqa: E731
         return play_episodes(env, act, key, num_episodes, shield=shield)
 
@@ -268,7 +304,10 @@ class Learner(struct.PyTreeNode):
             lambda r, _: self.update(r), runner, None, self.config.eval_every
         )
         eval_key = jax.random.PRNGKey(self.config.eval_seed)
-        evaluation = summarise(self.evaluate(runner.params, eval_key, self.config.eval_episodes))
+        threshold = runner.hparams.get("checker_threshold")
+        evaluation = summarise(
+            self.evaluate(runner.params, eval_key, self.config.eval_episodes, threshold=threshold)
+        )
         return runner, {"train": metrics, "eval": evaluation}
 
 
