@@ -287,7 +287,7 @@ def train_agents(cfg, out: Path, mode: str, trained) -> dict:
     checker = trained if config.uses_checker else None
     result = _run_ppo(config, checker, seeds=seeds, out_dir=out / "modes" / mode,
                       final_episodes=cfg.final_episodes, progress=cfg.progress,
-                      phase=f"d. {mode}")  # fmt: skip
+                      phase=f"d. {mode}", sweep=cfg.sweep_values or None)  # fmt: skip
     result["config"] = config
     return result
 
@@ -401,4 +401,89 @@ def write_outputs(cfg, out: Path, results: dict, runs: dict) -> list[Path]:
 
 __all__: list[str] = ["prepare_out", "ppo_config", "behaviour_config",
                       "behaviour_agent", "checker_data", "train_checker", "reuse_checker",
-                      "train_agents", "write_gif", "assemble", "write_outputs"]  # fmt: skip
+                      "train_agents", "write_gif", "assemble", "write_outputs",
+                      "select_agents", "write_sweep", "sweep_table"]  # fmt: skip
+
+
+# ----------------------------------------------------------------------------------------
+# f'. a sweep: results per swept value, and a summary across values
+# ----------------------------------------------------------------------------------------
+def select_agents(result: dict, name: str, value: float) -> dict:
+    """The part of a swept run's result (:func:`agents.runner.run`) whose agents ran with
+    ``name = value``: the same keys, as if those agents had been a run of their own."""
+    idx = np.flatnonzero(np.asarray(result["sweep"][name]) == value)
+    take = lambda x: np.asarray(x)[idx]  # noqa: E731
+    out = {k: v for k, v in result.items() if k not in ("runner", "sweep")}
+    out["eval"] = {k: take(v) for k, v in result["eval"].items()}
+    for k in ("train_violations", "train_violations_early", "train_alarms"):
+        out[k] = take(result[k])
+    out["seeds"] = [result["seeds"][i] for i in idx]
+    out["params"] = jax.tree.map(lambda a: a[idx], result["params"])
+    if "final" in result:
+        out["final"] = jax.tree.map(take, result["final"])
+    out["records"] = [r for r in result["records"] if r[name] == value]
+    return out
+
+
+def write_sweep(cfg, out: Path, runs: dict, checker_report: dict, total_s: float) -> dict:
+    """Per swept value, the usual outputs in ``out/<name>=<value>/``; across values,
+    ``sweep.json``, ``sweep.md`` and ``sweep.png`` (IQM final violations and success per
+    value and mode) and the training throughput of each mode's one program."""
+    from experiments.report import plot_sweep  # lazy: matplotlib
+
+    ((name, values),) = cfg.sweep_values.items()
+    rows, paths = [], []
+    for value in values:
+        sub_out = out / f"{name}={value:g}"
+        sub_out.mkdir(parents=True, exist_ok=True)
+        sub_cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, **{name: value}),
+                                      sweep=None, out=str(sub_out))  # fmt: skip
+        sub_runs = {mode: select_agents(r, name, value) for mode, r in runs.items()}
+        results = assemble(sub_cfg, sub_out, sub_runs, checker_report, total_s)
+        results["sweep"] = {name: value}
+        paths += write_outputs(sub_cfg, sub_out, results, sub_runs)
+        for mode, m in results["methods"].items():
+            rows.append({name: value, "mode": mode, **{k: m["iqm"][k] for k in (
+                "violation_rate", "success_rate", "training_violations")}})  # fmt: skip
+    agents = len(values) * cfg.seeds
+    steps = {m: int(r["steps"][-1]) * agents for m, r in runs.items()}
+    throughput = {m: {"agents": agents, "steps_per_s": steps[m] / r["wall_s"],
+                      "steps_per_s_per_agent": steps[m] / r["wall_s"] / agents,
+                      "wall_s": float(r["wall_s"])} for m, r in runs.items()}  # fmt: skip
+    summary = {"experiment": cfg.experiment, "sweep": {"name": name, "values": list(values)},
+               "seeds": cfg.seeds, "rows": rows, "throughput": throughput,
+               "total_s": float(total_s)}  # fmt: skip
+    write_json(out / "sweep.json", summary)
+    (out / "sweep.md").write_text(sweep_table(summary))
+    plot_sweep(summary, out / "sweep.png", f"{cfg.experiment} ({cfg.env_id}): {name} sweep")
+    paths += [out / "sweep.json", out / "sweep.md", out / "sweep.png"]
+    print(sweep_table(summary))
+    print("outputs:\n" + "\n".join(f"  {p}" for p in paths if Path(p).exists()))
+    return summary
+
+
+def sweep_table(summary: dict) -> str:
+    """Markdown: one row per (value, mode), IQM [95% interval]; then each mode's throughput."""
+    name = summary["sweep"]["name"]
+
+    def cell(s, scale, digits):
+        return f"{scale * s['iqm']:.{digits}f} [{scale * s['lo']:.{digits}f}, " \
+               f"{scale * s['hi']:.{digits}f}]"
+
+    lines = [f"# Sweep of {name}: {summary['experiment']}", "",
+             f"| {name} | mode | final violation % | success % | training violations |",
+             "|---:|---|---:|---:|---:|"]  # fmt: skip
+    for r in summary["rows"]:
+        lines.append(f"| {r[name]:g} | {r['mode']} | {cell(r['violation_rate'], 100, 1)} | "
+                     f"{cell(r['success_rate'], 100, 1)} | "
+                     f"{cell(r['training_violations'], 1, 0)} |")  # fmt: skip
+    lines += ["", f"Interquartile mean over {summary['seeds']} seeds per value [95% stratified-"
+              "bootstrap interval]. Every mode trains all its agents (values x seeds) in one "
+              "compiled program:", "",
+              "| mode | agents | env steps/s, all agents | per agent | wall time |",
+              "|---|---:|---:|---:|---:|"]  # fmt: skip
+    for mode, t in summary["throughput"].items():
+        lines.append(f"| {mode} | {t['agents']} | {t['steps_per_s']:,.0f} | "
+                     f"{t['steps_per_s_per_agent']:,.0f} | {t['wall_s']:.0f} s |")
+    lines.append("\nThroughput counts compilation and evaluations in the wall time.")
+    return "\n".join(lines) + "\n"

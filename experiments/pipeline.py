@@ -48,7 +48,7 @@ from typing import Annotated
 
 from tyro.constructors import PrimitiveConstructorSpec
 
-from agents.config import REWARD_MODES, PPOConfig
+from agents.config import REWARD_MODES, PPOConfig, check_sweep
 from checker import cli
 from checker.train import CheckerTrainConfig
 from experiments import phases
@@ -76,6 +76,9 @@ class ExperimentConfig:
     checker: str | None = None  # a trained checker's directory, reused (skips phases a-c)
     modes: Modes = REWARD_MODES  # the reward modes compared
     seeds: int = 5  # agents per mode, trained at once: seeds --seed, --seed + 1, ...
+    # NAME=V1,V2,...: every seed runs with every value, all in one compiled program per mode
+    # (NAME: penalty, checker_threshold, cost_target, ent_coef or lr); results per value
+    sweep: str | None = None
     behaviour_steps: int = 300_000  # env steps of the behaviour agent (phase a)
     checker_samples: int = 12_000  # windows of checker data (phase b)
     # steps per env at most while collecting until half the windows are positives (phase b)
@@ -120,6 +123,8 @@ class ExperimentConfig:
             value, low = getattr(self, name), int(name in positive)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"{me}.{name} must be an integer >= {low}, got {value!r}")
+        if self.sweep is not None:
+            self.sweep_values  # noqa: B018 (validates)
         if self.out is not None and not self.out:
             raise ValueError(f"{me}.out: an output directory is required (omit the flag for "
                              "runs/<experiment>/<date-time>)")  # fmt: skip
@@ -148,6 +153,19 @@ class ExperimentConfig:
         if self.checker is not None and not (Path(self.checker) / "config.json").exists():
             raise ValueError(f"{me}.checker {self.checker}: no trained checker there "
                              "(expected config.json and params.msgpack)")  # fmt: skip
+
+    @property
+    def sweep_values(self) -> dict[str, tuple[float, ...]]:
+        """``sweep`` as {name: values} ({} without one); ``ValueError`` naming the flag."""
+        if self.sweep is None:
+            return {}
+        name, sep, values = self.sweep.partition("=")
+        try:
+            if not sep or not name.strip():
+                raise ValueError("expected NAME=V1,V2,...")
+            return check_sweep({name.strip(): values.split(",")}, self.ppo)
+        except ValueError as e:
+            raise ValueError(f"{type(self).__name__}.sweep {self.sweep!r}: {e}") from None
 
     @property
     def env_id(self) -> str:
@@ -228,6 +246,8 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
         trained, checker_report = phases.train_checker(cfg, out, data, behaviour)  # c
     runs = {mode: phases.train_agents(cfg, out, mode, trained) for mode in cfg.modes}  # d, e
     keep.update(trained=trained, report=checker_report, runs=runs)
+    if cfg.sweep_values:  # one results directory per swept value, and a summary
+        return phases.write_sweep(cfg, out, runs, checker_report, time.perf_counter() - start)
     phases.write_gif(cfg, out, runs, trained)
     results = phases.assemble(cfg, out, runs, checker_report, time.perf_counter() - start)
     if cfg.machine_baseline:  # after the run, so that it does not delay any phase

@@ -58,6 +58,7 @@ __all__ = [
     "curves_from_results",
     "mean_ci",
     "plot_curves",
+    "plot_sweep",
     "results_table",
     "summarise",
     "t_quantile",
@@ -427,6 +428,45 @@ def plot_curves(
     fig.savefig(buf, format="png", dpi=dpi)
     atomic_write(path, buf.getvalue())
     return path
+
+
+def plot_sweep(summary: Mapping, path: str | os.PathLike, title: str | None = None,
+               *, dpi: int = 120) -> Path:
+    """A two-panel PNG of a sweep (:func:`experiments.phases.write_sweep`'s summary): final
+    violation % and success % against the swept value, one line per mode (interquartile
+    mean over seeds, 95% bootstrap interval as error bars, clipped to [0, 100])."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    name, rows = summary["sweep"]["name"], summary["rows"]
+    if not rows:
+        raise ValueError("summary.rows: expected at least one (value, mode) row")
+    fig = Figure(figsize=(11.0, 4.2), dpi=dpi, layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2)
+    positive = all(r[name] > 0 for r in rows)
+    for mode in _ordered_modes({r["mode"]: None for r in rows}):
+        mine = sorted((r for r in rows if r["mode"] == mode), key=lambda r: r[name])
+        x = np.array([r[name] for r in mine], dtype=np.float64)
+        for ax, key in zip(axes, ("violation_rate", "success_rate"), strict=True):
+            mid, lo, hi = (np.clip(100.0 * np.array([r[key][k] for r in mine]), 0.0, 100.0)
+                           for k in ("iqm", "lo", "hi"))  # fmt: skip
+            ax.errorbar(x, mid, yerr=[mid - lo, hi - mid], marker="o", capsize=3,
+                        color=MODE_COLORS.get(mode), label=MODE_LABELS.get(mode, mode))
+    for ax, label in zip(axes, ("final violation %", "final success %"), strict=True):
+        ax.set_xlabel(name)
+        ax.set_ylabel(label)
+        ax.set_ylim(-2, 102)
+        ax.grid(True, alpha=0.3)
+        if positive and max(r[name] for r in rows) / min(r[name] for r in rows) >= 10:
+            ax.set_xscale("log")
+    axes[1].legend(loc="best", fontsize=8, title="IQM, 95% bootstrap CI", title_fontsize=8)
+    if title:
+        fig.suptitle(title)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    atomic_write(Path(path), buf.getvalue())
+    return Path(path)
 
 
 # ----------------------------------------------------------------------------------------------
