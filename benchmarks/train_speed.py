@@ -81,6 +81,11 @@ DEFAULTS = {
 }
 
 
+# --baseline-network: the baseline's learner on jaxgrid's DoorKey-8x8 (same sizes).
+JAXGRID_DOORKEY = "MiniGrid-DoorKey-8x8-v0"
+SAME_LEARNER = "purejaxrl-jaxgrid"
+
+
 def _log(*args) -> None:
     print(*args, file=sys.stderr, flush=True)
 
@@ -149,9 +154,10 @@ class Ours:
 # Baseline
 # ----------------------------------------------------------------------------------------
 class Baseline:
-    """PureJaxRL-style PPO on NAVIX DoorKey-8x8, ``U`` updates per call."""
+    """PureJaxRL-style PPO, ``U`` updates per call: on NAVIX DoorKey-8x8 (the baseline), or
+    on another env (``env_name``: a jaxgrid id, the same learner on our env)."""
 
-    def __init__(self, sizes: dict, updates: int):
+    def __init__(self, sizes: dict, updates: int, env_name: str | None = None):
         from benchmarks import purejaxrl_ppo
 
         batch = sizes["num_envs"] * sizes["num_steps"]
@@ -161,6 +167,7 @@ class Baseline:
             "NUM_STEPS": sizes["num_steps"],
             "UPDATE_EPOCHS": sizes["epochs"],
             "NUM_MINIBATCHES": sizes["minibatches"],
+            **({"ENV_NAME": env_name} if env_name else {}),
         }
         self.steps, self.calls = updates * batch, 0
         train = purejaxrl_ppo.make_train(self.config)
@@ -366,6 +373,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="timed calls per mode; sps and ratio are medians")
     p.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=True,
                    help="also time the PureJaxRL baseline (needs navix)")
+    p.add_argument("--baseline-network", action="store_true", default=False,
+                   help="also time the baseline's learner (PureJaxRL MLP) on jaxgrid's "
+                   f"{JAXGRID_DOORKEY}, in the same rounds")
     p.add_argument("--profile", action="store_true", default=False,
                    help="add a per-update time breakdown to each line")
     p.add_argument("--ops", type=int, default=0, metavar="N",
@@ -433,7 +443,14 @@ def main(argv=None) -> list[dict[str, Any]]:
         learners[mode] = Ours(mode, sizes, updates, checker)
         _log(f"  {mode} compile {learners[mode].compile_s:.1f}s")
 
+    same_learner = None
+    if args.baseline_network:
+        _log(f"compiling the baseline's learner on jaxgrid {JAXGRID_DOORKEY} ...")
+        same_learner = Baseline(sizes, updates, env_name=JAXGRID_DOORKEY)
+        _log(f"  compile {same_learner.compile_s:.1f}s")
     contenders = ([("baseline", baseline)] if baseline is not None else []) + list(learners.items())
+    if same_learner is not None:
+        contenders.append((SAME_LEARNER, same_learner))
     runs = {name: [] for name, _ in contenders}  # (env steps, seconds) per call
     for r in range(args.repeats):
         for name, bench in contenders:
@@ -496,6 +513,20 @@ def main(argv=None) -> list[dict[str, Any]]:
                 )
             except RuntimeError as e:  # no trace, or one naming no instruction
                 line["ops"] = {"error": str(e)}
+        lines.append(line)
+        print(json.dumps(line), flush=True)
+
+    if same_learner is not None:
+        line = {"mode": SAME_LEARNER, "env": JAXGRID_DOORKEY,
+                "sps": round(_median(sps[SAME_LEARNER]), 1),
+                "sps_overall": round(overall[SAME_LEARNER], 1),
+                "compile_s": round(same_learner.compile_s, 2), "device": device,
+                "sps_all": [round(x, 1) for x in sps[SAME_LEARNER]]}  # fmt: skip
+        if baseline is not None:  # the same learner on NAVIX: the env's share of the speed
+            ratios = [x / b for x, b in zip(sps[SAME_LEARNER], base_sps, strict=True)]
+            line.update(baseline="purejaxrl-navix (Navix-DoorKey-8x8-v0)",
+                        baseline_sps=round(_median(base_sps), 1),
+                        ratio=round(_median(ratios), 3))  # fmt: skip
         lines.append(line)
         print(json.dumps(line), flush=True)
 

@@ -142,3 +142,12 @@ def test_op_places_name_the_pass_and_the_module(op_name, where):
     assert describe(op_name) == where
     hlo = f'  %dot.8 = f32[20,8]{{1,0}} dot(%a, %b), metadata={{op_name="{op_name}"}}'
     assert instruction_sources(hlo) == {"dot.8": op_name}
+
+
+@pytest.mark.slow
+def test_baseline_network_times_the_baselines_learner_on_jaxgrid():
+    lines = train_speed.main(["--modes", "none", "--baseline-network"] + TINY[2:])
+    assert [x["mode"] for x in lines] == ["none", "purejaxrl-jaxgrid"]
+    same = lines[1]
+    assert same["env"] == "MiniGrid-DoorKey-8x8-v0" and same["sps"] > 0
+    assert len(same["sps_all"]) == 2 and "ratio" not in same  # no NAVIX baseline timed
