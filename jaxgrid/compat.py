@@ -6,7 +6,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgrid.constants import EMPTY_CELL
+from jaxgrid.constants import COLOR_TO_IDX, EMPTY_CELL, OBJECT_TO_IDX
+from jaxgrid.environment import Environment
+from jaxgrid.levels import keys
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.types import State, TimeStep
 
@@ -28,20 +30,28 @@ def _check_object(obj, where: str) -> None:
 
 def from_minigrid(
     mg_env, key: jax.Array | None = None, *, base_step: bool = False
-) -> tuple[FixedLevel, State, TimeStep]:
+) -> tuple[Environment, State, TimeStep]:
     """Convert a *reset* Farama MiniGrid env into ``(env, state, timestep)``.
 
     Takes the grid, agent pose, carried object, step count, ``max_steps``, view size and
-    ``see_through_walls``. ``env.reset`` later returns the converted start (step count 0); the
-    returned ``state`` continues the MiniGrid episode where it stands. ``mg_env`` may be wrapped;
-    its ``unwrapped`` is read. Unsupported objects and boxes with contents raise ``ValueError``
-    naming the object and its cell.
+    ``see_through_walls``; the returned ``state`` continues the MiniGrid episode where it
+    stands. ``mg_env`` may be wrapped; its ``unwrapped`` is read. Unsupported objects and boxes
+    with contents raise ``ValueError`` naming the object and its cell.
 
-    The converted env steps with ``MiniGridEnv.step``'s rules. A level whose class overrides
-    ``step`` (Unlock ends on opening the door, DynamicObstacles moves its balls, Memory,
-    KeyCorridor, RedBlueDoors, ...) has rules of its own that are not reproduced, so it raises
-    ``ValueError`` naming the class, unless ``base_step=True`` asks for its layout under
-    ``MiniGridEnv.step``'s rules alone. An env that is not a MiniGrid env raises too.
+    For most levels ``env`` is a :class:`~jaxgrid.levels.FixedLevel`: it steps with
+    ``MiniGridEnv.step``'s rules and ``env.reset`` returns the converted start (step count 0).
+
+    ``UnlockEnv``, ``UnlockPickupEnv``, ``BlockedUnlockPickupEnv`` and ``KeyCorridorEnv`` (these
+    exact classes; KeyCorridor with its default ``obj_type="ball"``) convert to the native level
+    of the same family and configuration (:mod:`jaxgrid.levels.keys`): ``env.step`` applies the
+    level's own success rule to the task object (``mg_env.door`` or ``mg_env.obj``, kept in
+    ``state.extras``), and ``env.reset`` draws fresh layouts of the family, as MiniGrid's would.
+
+    Any other class that overrides ``step`` (DynamicObstacles moves its balls, Memory,
+    RedBlueDoors, subclasses of the families above, ...) has rules of its own that are not
+    reproduced, so it raises ``ValueError`` naming the class, unless ``base_step=True`` asks
+    for its layout under ``MiniGridEnv.step``'s rules alone; ``base_step=True`` gives that
+    ``FixedLevel`` for the four families too. An env that is not a MiniGrid env raises too.
     """
     from minigrid.minigrid_env import MiniGridEnv  # minigrid is needed here only
 
@@ -52,7 +62,8 @@ def from_minigrid(
             f"wrapped); got {type(env).__name__}, which is not a MiniGrid env"
         )
     cls = type(env)
-    if cls.step is not MiniGridEnv.step and not base_step:
+    native = None if base_step else _native_family(env)
+    if cls.step is not MiniGridEnv.step and not base_step and native is None:
         raise ValueError(
             f"{cls.__name__} overrides MiniGridEnv.step: its own step rules are not reproduced "
             "by the converted env (it steps with MiniGridEnv.step's rules only); pass "
@@ -70,6 +81,8 @@ def from_minigrid(
     grid = env.grid.encode()
     carrying = tuple(int(c) for c in env.carrying.encode()) if env.carrying else tuple(EMPTY_CELL)
     pos = tuple(int(c) for c in env.agent_pos)
+    if native is not None:
+        return _convert_native(env, native, grid, carrying, pos, key)
     jenv = FixedLevel(
         width=env.grid.width,
         height=env.grid.height,
@@ -83,4 +96,51 @@ def from_minigrid(
     )
     state = jenv.generate(jax.random.PRNGKey(0) if key is None else key)
     state = state.replace(step_count=jnp.asarray(env.step_count, jnp.int32))
+    return jenv, state, jenv.first_timestep(state)
+
+
+def _native_family(env):
+    """The native level class for ``env``'s family, or None (see :func:`from_minigrid`)."""
+    from minigrid.envs import BlockedUnlockPickupEnv, KeyCorridorEnv, UnlockEnv, UnlockPickupEnv
+
+    families = {
+        UnlockEnv: keys.Unlock,
+        UnlockPickupEnv: keys.UnlockPickup,
+        BlockedUnlockPickupEnv: keys.BlockedUnlockPickup,
+        KeyCorridorEnv: keys.KeyCorridor,
+    }
+    native = families.get(type(env))
+    if native is keys.KeyCorridor and env.obj_type != "ball":
+        raise ValueError(
+            f"KeyCorridorEnv with obj_type={env.obj_type!r} is not supported natively (only "
+            "'ball'); pass base_step=True to convert its layout under MiniGridEnv.step's rules"
+        )
+    return native
+
+
+def _convert_native(env, native, grid, carrying, pos, key):
+    """``(native env, state, timestep)`` continuing ``env``'s episode under its own rules."""
+    settings = dict(
+        width=env.grid.width,
+        height=env.grid.height,
+        max_steps=int(env.max_steps),
+        view_size=int(env.agent_view_size),
+        see_through_walls=bool(env.see_through_walls),
+        room_size=int(env.room_size),
+    )
+    if native is keys.KeyCorridor:
+        settings.update(num_rows=int(env.num_rows), num_cols=int(env.num_cols))
+    elif (env.num_rows, env.num_cols) != (1, 2):
+        raise ValueError(f"{type(env).__name__} must have one row of two rooms")
+    jenv = native(**settings)
+    target = env.door if native is keys.Unlock else env.obj  # the object the step rule tests
+    where = target.cur_pos if target.cur_pos is not None else (-1, -1)
+    mission = keys.mission(OBJECT_TO_IDX[target.type], COLOR_TO_IDX[target.color], where)
+    state = jenv.init_state(
+        grid, pos, int(env.agent_dir), jax.random.PRNGKey(0) if key is None else key, mission
+    )
+    state = state.replace(
+        carrying=jnp.asarray(carrying, jnp.uint8),
+        step_count=jnp.asarray(env.step_count, jnp.int32),
+    )
     return jenv, state, jenv.first_timestep(state)

@@ -6,7 +6,7 @@ import dataclasses
 from collections.abc import Callable
 
 from jaxgrid.environment import Environment
-from jaxgrid.levels import DoorKey, Empty, LavaGap
+from jaxgrid.levels import DoorKey, Empty, LavaGap, keys, navigation
 from jaxgrid.scenarios import ThreeRoomsKey, TwoRooms
 
 
@@ -46,6 +46,8 @@ _BUILTIN: dict[str, Callable[[], Environment]] = {
     **{f"MiniGrid-Empty-Random-{n}x{n}-v0": _empty(n, True) for n in (5, 6)},
     **{f"MiniGrid-DoorKey-{n}x{n}-v0": _doorkey(n) for n in (5, 6, 8, 16)},
     **{f"MiniGrid-LavaGapS{n}-v0": _lavagap(n) for n in (5, 6, 7)},
+    **navigation.IDS,
+    **keys.IDS,
     **_scenarios(),
 }
 _USER: dict[str, Callable[[], Environment]] = {}

@@ -2,5 +2,19 @@
 
 from jaxgrid.levels.classic import DoorKey, Empty, LavaGap
 from jaxgrid.levels.fixed import FixedLevel
+from jaxgrid.levels.keys import BlockedUnlockPickup, KeyCorridor, Unlock, UnlockPickup
+from jaxgrid.levels.navigation import Crossing, DistShift, FourRooms
 
-__all__ = ["DoorKey", "Empty", "FixedLevel", "LavaGap"]
+__all__ = [
+    "BlockedUnlockPickup",
+    "Crossing",
+    "DistShift",
+    "DoorKey",
+    "Empty",
+    "FixedLevel",
+    "FourRooms",
+    "KeyCorridor",
+    "LavaGap",
+    "Unlock",
+    "UnlockPickup",
+]

@@ -3,12 +3,17 @@ raise clear errors before any compile, and every legal world is well formed and 
 
 * Worlds: each level states its minimum size; smaller ones raise ``ValueError`` naming the
   setting and the minimum. Every registered id, reset at its minimum size and at random legal
-  sizes, puts agent, goal, doors, keys and lava on legal cells, and the oracle solves every
-  episode without a violation.
+  sizes (for RoomGrid levels: room sizes, and KeyCorridor's rows and columns of rooms), puts
+  agent, goal, doors, keys, balls, boxes and lava on legal cells in the numbers its family
+  places (bounded where the layout decides them). The oracle solves every episode of the levels
+  won by reaching the goal without a violation; those with their own success rule (Unlock,
+  UnlockPickup, BlockedUnlockPickup, KeyCorridor) are solvable by reachability: the key, then
+  the locked door, then the target, which the locked door shuts away.
 * Actions and keys: concrete bad values raise ``TypeError``/``ValueError``; traced values are
   untouched (out-of-range actions still act as ``done``, ``jit`` compiles once, ``vmap`` works).
 * gymnasium: actions are checked against the action space; ``render()`` without a mode warns.
-* ``from_minigrid``: levels with their own ``step`` and non-MiniGrid envs are refused.
+* ``from_minigrid``: levels with their own ``step`` and non-MiniGrid envs are refused, except
+  the four families with a native level of their own rules, which convert to it.
 """
 
 from __future__ import annotations
@@ -23,12 +28,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.ndimage
 
 import jaxgrid
 import jaxgrid.gym as jgym
 from jaxgrid.compat import from_minigrid
-from jaxgrid.constants import DONE, DOOR, EMPTY, GOAL, KEY, LAVA, LOCKED, WALL
-from jaxgrid.levels import FixedLevel
+from jaxgrid.constants import BALL, BOX, DONE, DOOR, EMPTY, FLOOR, GOAL, KEY, LAVA, LOCKED, WALL
+from jaxgrid.levels import (
+    BlockedUnlockPickup,
+    FixedLevel,
+    KeyCorridor,
+    Unlock,
+    UnlockPickup,
+)
+from jaxgrid.levels.keys import IDS as KEY_IDS
+from jaxgrid.levels.keys import RoomLevel, roomgrid_size
+from jaxgrid.levels.navigation import IDS as NAVIGATION_IDS
 from jaxgrid.oracle import rollout_oracle
 
 KEY0 = jax.random.PRNGKey(0)
@@ -36,59 +51,111 @@ IDS = jaxgrid.registered_ids()  # the built-in ids (collected before any test re
 EPISODES = 32  # per (id, size), in one jitted call
 
 
-def _min_sizes(env) -> list[tuple[int, int]]:
+def _min_settings(env) -> list[dict]:
     """The smallest legal sizes: the stated minimum, or its two neighbours where the corner
-    itself is refused (Empty's 3x3 has no room for both agent and goal)."""
+    itself is refused (Empty's 3x3 has no room for both agent and goal).
+
+    A RoomGrid level's size follows from its rooms: its smallest is its smallest
+    ``room_size`` with the id's rows and columns of rooms.
+    """
+    if isinstance(env, RoomLevel):
+        return [_room_settings(env, env.MIN_ROOM_SIZE, *env.rows_cols())]
     mw, mh, _ = env.min_size()
     sizes = [(mw, mh)] if _legal(env, mw, mh) else [(mw + 1, mh), (mw, mh + 1)]
     assert all(_legal(env, *s) for s in sizes), sizes
-    return sizes
+    return [dict(width=w, height=h) for w, h in sizes]
 
 
-def _legal(env, width, height) -> bool:
+def _room_settings(env, room_size, rows, cols) -> dict:
+    width, height = roomgrid_size(room_size, rows, cols)
+    settings = dict(width=width, height=height, room_size=room_size)
+    if isinstance(env, KeyCorridor):
+        settings.update(num_rows=rows, num_cols=cols)
+    return settings
+
+
+def _legal(env, width, height, **settings) -> bool:
     try:
-        env.replace(width=width, height=height)
+        env.replace(width=width, height=height, **settings)
     except ValueError:
         return False
     return True
 
 
-def _random_sizes(env_id, env, count) -> list[tuple[int, int]]:
-    mw, mh, _ = env.min_size()
+def _random_settings(env_id, env, count) -> list[dict]:
     rng = np.random.default_rng(zlib.crc32(env_id.encode()))
+    if isinstance(env, RoomLevel):  # room sizes (and KeyCorridor's rows and columns)
+        low = env.MIN_ROOM_SIZE
+        shapes = [env.rows_cols()]
+        if isinstance(env, KeyCorridor):
+            shapes = [(r, c) for r in range(1, 5) for c in (3, 4)]
+        options = [_room_settings(env, s, r, c) for s in range(low, low + 7) for r, c in shapes]
+        options = [o for o in options if _legal(env, **o)]
+        picks = rng.choice(len(options), size=min(count, len(options)), replace=False)
+        return [options[i] for i in sorted(picks)]
+    mw, mh, _ = env.min_size()
     sizes = []
     while len(sizes) < count:
         size = (int(rng.integers(mw, mw + 10)), int(rng.integers(mh, mh + 8)))
         if _legal(env, *size) and size not in sizes:
             sizes.append(size)
-    return sizes
+    return [dict(width=w, height=h) for w, h in sizes]
 
 
-# (doors, keys) each level places; lava is counted separately (it depends on the size).
-OBJECTS = {"Empty": (0, 0), "DoorKey": (1, 1), "LavaGap": (0, 0), "TwoRooms": (2, 0)}
-OBJECTS["ThreeRoomsKey"] = (2, 1)
+def _expected(env) -> dict[str, int | range | None]:
+    """Objects every layout of ``env`` holds: a count, a range where the layout decides (the
+    doors ``connect_all`` adds), or None where :func:`_check_structure` counts them per
+    layout (Crossing's lava: which rivers were drawn)."""
+    name, w, h = type(env).__name__, env.width, env.height
+    counts = dict(goal=1, door=0, key=0, ball=0, box=0, lava=0)
+    if name == "DoorKey":
+        counts.update(door=1, key=1)
+    elif name == "LavaGap":
+        counts.update(lava=h - 3)  # the interior column minus its one-cell gap
+    elif name == "TwoRooms":
+        counts.update(door=2, lava=int(env.has_lava))
+    elif name == "ThreeRoomsKey":
+        counts.update(door=2, key=1)
+    elif name == "Crossing":
+        counts.update(lava=None if env.obstacle == "lava" else 0)
+    elif name == "DistShift":  # columns 3 .. width - 4 of row 1 and of row strip2_row
+        counts.update(lava=max(w - 6, 0) * (1 if env.strip2_row == 1 else 2))
+    elif isinstance(env, RoomLevel):  # no goal: success is the level's own rule
+        counts.update(goal=0, door=1, key=1)
+        if isinstance(env, UnlockPickup):
+            counts.update(box=1, ball=int(isinstance(env, BlockedUnlockPickup)))
+        if isinstance(env, KeyCorridor):
+            # The locked door, then connect_all's doors until every room is reachable: a
+            # spanning tree at least (the corridor's open walls and the locked door join some
+            # rooms already), at most every wall left (it may close a cycle).
+            rows, cols = env.rows_cols()
+            walls = rows * (cols - 1) + (rows - 1) * cols - (rows - 1)  # less the corridor's
+            counts.update(ball=1, door=range(rows * (cols - 1), walls + 1))
+    else:
+        assert name in ("Empty", "FourRooms"), f"{name}: state what its layouts hold"
+    return counts
 
 
-def _expected_lava(env) -> int:
-    name = type(env).__name__
-    if name == "LavaGap":
-        return env.height - 3  # the interior column minus its one-cell gap
-    return int(name == "TwoRooms" and env.has_lava)
-
-
-@jax.jit
-def _resets_and_oracle(env, key):
+@functools.partial(jax.jit, static_argnames="oracle")
+def _resets_and_oracle(env, key, oracle):
     states, _ = jax.vmap(env.reset)(jax.random.split(key, EPISODES))
+    if not oracle:
+        return states, None
     return states, rollout_oracle(env, key, EPISODES)  # the same resets, then the oracle
 
 
-def _check_world(env_id, width, height):
-    env = jaxgrid.make(env_id, width=width, height=height)
-    states, result = jax.device_get(_resets_and_oracle(env, KEY0))
-    doors, keys = OBJECTS[type(env).__name__]
-    # Rows of a door's wall that may be open: ThreeRoomsKey's second wall has a bottom-row gap.
-    gaps = {height - 2} if type(env).__name__ == "ThreeRoomsKey" else set()
-    where = f"{env_id} at {width}x{height}"
+def _check_world(env_id, **settings):
+    env = jaxgrid.make(env_id, **settings)
+    # The oracle's success is reaching the goal: it does not know the own-success levels
+    # (open the door, pick up the box or ball), so those are checked for solvability by
+    # reachability in _check_rooms, and solved by a scripted solution in test_key_levels.
+    oracle = not isinstance(env, RoomLevel)
+    states, result = jax.device_get(_resets_and_oracle(env, KEY0, oracle))
+    expected = _expected(env)
+    width, height = env.width, env.height
+    where = f"{env_id} at {width}x{height}" + "".join(
+        f" {k}={v}" for k, v in settings.items() if k not in ("width", "height")
+    )
     for i in range(EPISODES):
         grid, kind = states.grid[i], states.grid[i, ..., 0]
         assert kind.shape == (width, height), where
@@ -97,48 +164,180 @@ def _check_world(env_id, width, height):
         x, y = states.agent_pos[i]
         assert 0 < x < width - 1 and 0 < y < height - 1, where
         assert kind[x, y] == EMPTY, f"{where}: the agent starts on object {kind[x, y]}"
-        assert (kind == GOAL).sum() == 1, f"{where}: {(kind == GOAL).sum()} goals"
         if hasattr(states.extras, "goal_pos"):
             assert kind[tuple(states.extras.goal_pos[i])] == GOAL, where
-        door_cells = np.argwhere(kind == DOOR)
-        assert len(door_cells) == doors, f"{where}: {len(door_cells)} doors"
-        for dx, dy in door_cells:  # in a vertical wall, leading across it
-            openings = np.flatnonzero(~np.isin(kind[dx, 1:-1], [WALL, DOOR])) + 1
-            assert set(openings.tolist()) <= gaps, f"{where}: door ({dx}, {dy}) not in a wall"
-            assert kind[dx - 1, dy] != WALL and kind[dx + 1, dy] != WALL, where
-        key_cells = np.argwhere(kind == KEY)
-        assert len(key_cells) == keys, f"{where}: {len(key_cells)} keys"
+        for name, obj in (("goal", GOAL), ("door", DOOR), ("key", KEY), ("ball", BALL),
+                          ("box", BOX), ("lava", LAVA)):  # fmt: skip
+            want, got = expected[name], int((kind == obj).sum())
+            if want is not None:
+                ok = got in want if isinstance(want, range) else got == want
+                assert ok, f"{where}: {got} {name} cells, expected {want}"
         locked = grid[kind == DOOR][grid[kind == DOOR][:, 2] == LOCKED]
-        for kx, ky in key_cells:  # the key opens the locked door
+        for kx, ky in np.argwhere(kind == KEY):  # the key opens the locked door
             assert len(locked) == 1 and grid[kx, ky, 1] == locked[0, 1], where
-        assert (kind == LAVA).sum() == _expected_lava(env), where
-    assert result["success"].all(), f"{where}: the oracle failed {(~result['success']).sum()}"
-    assert (result["violations"] == 0).all(), f"{where}: the oracle had to violate"
+        if isinstance(env, RoomLevel):
+            _check_rooms(env, grid, (x, y), jax.tree.map(lambda a, i=i: a[i], states.extras), where)
+        else:
+            _check_doors(env, kind, where)
+        _check_structure(env, kind, where)
+    if oracle:
+        assert result["success"].all(), f"{where}: the oracle failed {(~result['success']).sum()}"
+        assert (result["violations"] == 0).all(), f"{where}: the oracle had to violate"
 
 
-@pytest.mark.parametrize("env_id", IDS)
+def _check_doors(env, kind, where):
+    """Each door sits in a vertical wall and leads across it."""
+    # Rows of a door's wall that may be open: ThreeRoomsKey's second wall has a bottom-row gap.
+    gaps = {env.height - 2} if type(env).__name__ == "ThreeRoomsKey" else set()
+    for dx, dy in np.argwhere(kind == DOOR):
+        openings = np.flatnonzero(~np.isin(kind[dx, 1:-1], [WALL, DOOR])) + 1
+        assert set(openings.tolist()) <= gaps, f"{where}: door ({dx}, {dy}) not in a wall"
+        assert kind[dx - 1, dy] != WALL and kind[dx + 1, dy] != WALL, where
+
+
+def _check_structure(env, kind, where):
+    """Where the level's fixed walls and lava lie, family by family."""
+    name, w, h = type(env).__name__, env.width, env.height
+    xs, ys = np.meshgrid(np.arange(w), np.arange(h), indexing="ij")
+    inner = (xs > 0) & (xs < w - 1) & (ys > 0) & (ys < h - 1)
+    if name == "FourRooms":  # the middle column and row, one gap in each of their four halves
+        walls = inner & (kind == WALL)
+        assert (walls <= ((xs == w // 2) | (ys == h // 2))).all(), f"{where}: a stray wall"
+        assert walls.sum() == (w - 2) + (h - 2) - 1 - 4, f"{where}: {walls.sum()} inner walls"
+    elif name == "Crossing":
+        # Rivers on even lines 2 .. size - 3, each missing one cell off the other rivers: a
+        # column with h - 3 obstacles is a river, any other holds only the row rivers' cells.
+        obstacle = inner & (kind == (LAVA if env.obstacle == "lava" else WALL))
+        on_lines = ((xs % 2 == 0) & (xs >= 2) & (xs <= w - 3)) | (
+            (ys % 2 == 0) & (ys >= 2) & (ys <= h - 3)
+        )
+        assert (obstacle <= on_lines).all(), f"{where}: an obstacle off the river lines"
+        v = int((obstacle[2 : w - 2 : 2].sum(1) == h - 3).sum())
+        hz = int((obstacle[:, 2 : h - 2 : 2].sum(0) == w - 3).sum())
+        n = env.num_crossings
+        assert v + hz == n, f"{where}: {v} + {hz} rivers, expected {n}"
+        want = v * (h - 2) + hz * (w - 2) - v * hz - n
+        assert obstacle.sum() == want, f"{where}: {obstacle.sum()} obstacles, expected {want}"
+        assert (inner & (kind == WALL)).sum() == (0 if env.obstacle == "lava" else want), where
+    elif name == "DistShift":
+        lava_rows = (ys == 1) | (ys == env.strip2_row)
+        assert ((kind == LAVA) <= (lava_rows & (xs >= 3) & (xs <= w - 4))).all(), where
+        assert kind[w - 2, 1] == GOAL, where
+
+
+def _reach(passable, start) -> np.ndarray:
+    """bool ``(W, H)``: the cells reachable from ``start`` through ``passable`` cells."""
+    labels, _ = scipy.ndimage.label(passable)  # 4-connected components
+    return labels == labels[tuple(start)]
+
+
+def _faceable(reach, cell) -> bool:
+    """Whether the agent can stand next to ``cell`` (facing it) within ``reach``."""
+    x, y = cell
+    return bool(reach[x - 1, y] | reach[x + 1, y] | reach[x, y - 1] | reach[x, y + 1])
+
+
+def _check_rooms(env, grid, agent, mission, where):
+    """RoomGrid levels: the rooms' walls, doors leading between rooms, the mission object, and
+    a solution by reachability (MiniGrid's moves: walk on empty cells and open doors, open
+    closed doors, a locked one with its key; face an object to pick it up)."""
+    kind, state = grid[..., 0], grid[..., 2]
+    s = env.room_size - 1
+    rows, cols = env.rows_cols()
+    xs, ys = np.meshgrid(np.arange(env.width), np.arange(env.height), indexing="ij")
+    lattice = (xs % s == 0) | (ys % s == 0)
+    removed = np.zeros_like(lattice)  # KeyCorridor: the corridor's walls between its rooms
+    if isinstance(env, KeyCorridor):
+        removed = (ys % s == 0) & (ys > 0) & (ys < env.height - 1) & (xs > s) & (xs < 2 * s)
+    assert (np.isin(kind[lattice & ~removed], [WALL, DOOR])).all(), f"{where}: a wall is open"
+    assert not (np.isin(kind, [WALL, DOOR]) & ~lattice).any(), f"{where}: a stray wall/door"
+    assert not np.isin(kind[removed], [WALL, DOOR]).any(), f"{where}: the corridor is closed"
+    for dx, dy in np.argwhere(kind == DOOR):  # between two rooms, not at a wall's corner
+        across = [(dx - 1, dy), (dx + 1, dy)] if dx % s == 0 else [(dx, dy - 1), (dx, dy + 1)]
+        assert (dx % s == 0) != (dy % s == 0), f"{where}: door ({dx}, {dy}) at a corner"
+        assert all(kind[c] != WALL for c in across), f"{where}: door ({dx}, {dy}) leads nowhere"
+    # place_agent(i, j): in room (i, j), walls included (KeyCorridor's removed ones are free)
+    i, j = (1, rows // 2) if isinstance(env, KeyCorridor) else (0, 0)
+    in_room = i * s <= agent[0] <= (i + 1) * s and j * s <= agent[1] <= (j + 1) * s
+    assert in_room, f"{where}: the agent starts outside room ({i}, {j})"
+    # connect_all: every room reachable from the agent's, doors counted as passable.
+    assert _reach(kind != WALL, agent)[kind != WALL].all(), f"{where}: a room is cut off"
+    # The mission object lies where state.extras says.
+    target = tuple(mission.pos)
+    assert (kind[target], grid[target][1]) == (mission.kind, mission.colour), where
+    locked = [tuple(c) for c in np.argwhere((kind == DOOR) & (state == LOCKED))]
+    assert len(locked) == 1, f"{where}: {len(locked)} locked doors"
+    door = locked[0]
+    # Objects picked up free their cells. This relaxes where BlockedUnlockPickup's ball is put
+    # down (its cell is freed; the scripted solutions of test_key_levels drop it somewhere).
+    unlocked = np.isin(kind, [EMPTY, FLOOR, GOAL]) | ((kind == DOOR) & (state != LOCKED))
+    if isinstance(env, BlockedUnlockPickup):  # the ball in front of the door, moved first
+        ball = (door[0] - 1, door[1])
+        assert kind[ball] == BALL and _faceable(_reach(unlocked, agent), ball), where
+        unlocked[ball] = True
+    (key,) = [tuple(c) for c in np.argwhere(kind == KEY)]
+    assert _faceable(_reach(unlocked, agent), key), f"{where}: the key is out of reach"
+    unlocked[key] = True
+    without_key = _reach(unlocked, agent)
+    assert _faceable(without_key, door), f"{where}: the locked door is out of reach"
+    if isinstance(env, Unlock):
+        assert target == door, where
+        return
+    with_key = _reach(unlocked | (kind == DOOR), agent)
+    assert not _faceable(without_key, target), f"{where}: the target is not locked away"
+    assert _faceable(with_key, target), f"{where}: the target is out of reach"
+
+
+# FourRooms, the Crossings, DistShift and the key levels: one case per level class (and
+# obstacle) in the default run, every id with -m slow. At its minimum size an id differs from
+# the others of its class only in a setting such as num_crossings (KeyCorridorS4R3 .. S6R3
+# are all S3R3 there).
+ONE_PER_CLASS = {
+    "MiniGrid-FourRooms-v0",
+    "MiniGrid-LavaCrossingS9N1-v0",
+    "MiniGrid-SimpleCrossingS9N1-v0",
+    "MiniGrid-DistShift1-v0",
+    "MiniGrid-Unlock-v0",
+    "MiniGrid-UnlockPickup-v0",
+    "MiniGrid-BlockedUnlockPickup-v0",
+    "MiniGrid-KeyCorridorS3R2-v0",
+}
+MIN_SIZE_IDS = [
+    i if i not in {**NAVIGATION_IDS, **KEY_IDS} or i in ONE_PER_CLASS
+    else pytest.param(i, marks=pytest.mark.slow)
+    for i in IDS
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("env_id", MIN_SIZE_IDS)
 def test_every_id_is_legal_and_solvable_at_its_minimum_size(env_id):
     env = jaxgrid.make(env_id)
-    for size in _min_sizes(env):
-        _check_world(env_id, *size)
+    for settings in _min_settings(env):
+        _check_world(env_id, **settings)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("env_id", IDS)
 def test_every_id_is_legal_and_solvable_at_many_sizes(env_id):
     env = jaxgrid.make(env_id)
-    for size in _random_sizes(env_id, env, 6):
-        _check_world(env_id, *size)
+    for settings in _random_settings(env_id, env, 6):
+        _check_world(env_id, **settings)
 
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_below_the_minimum_size_raises_naming_the_setting_and_minimum(env_id):
     env = jaxgrid.make(env_id)
     mw, mh, _ = env.min_size()
-    with pytest.raises(ValueError, match=rf"\.width must be at least {mw} "):
+    # A RoomGrid level's size is its rooms' (room_size, rows, columns): exactly that size.
+    size = r"{} for room_size=" if isinstance(env, RoomLevel) else r"at least {} "
+    with pytest.raises(ValueError, match=rf"\.width must be {size.format(mw)}"):
         jaxgrid.make(env_id, width=mw - 1)
-    with pytest.raises(ValueError, match=rf"\.height must be at least {mh} "):
+    with pytest.raises(ValueError, match=rf"\.height must be {size.format(mh)}"):
         jaxgrid.make(env_id, height=mh - 1)
+    if isinstance(env, RoomLevel):
+        low = env.MIN_ROOM_SIZE
+        with pytest.raises(ValueError, match=rf"\.room_size must be an int >= {low} "):
+            jaxgrid.make(env_id, room_size=low - 1)
 
 
 @pytest.mark.parametrize(
@@ -153,6 +352,13 @@ def test_below_the_minimum_size_raises_naming_the_setting_and_minimum(env_id):
         ("MiniGrid-LavaGapS5-v0", dict(width=4), r"LavaGap\.width must be at least 5"),
         ("ThreeRoomsKey-v0", dict(width=5), r"ThreeRoomsKey\.width must be at least 7"),
         ("TwoRooms-v0", dict(view_size=4), r"view_size must be an odd int"),
+        ("MiniGrid-Unlock-v0", dict(width=12), r"Unlock\.width must be 11 for room_size=6"),
+        ("MiniGrid-KeyCorridorS3R1-v0", dict(num_cols=4, width=9), r"num_rows must be at least 2"),
+        (
+            "MiniGrid-KeyCorridorS3R3-v0",
+            dict(num_cols=4, width=9),
+            r"KeyCorridor\.room_size must be at least 4 when num_cols is 4",
+        ),
     ],
 )
 def test_impossible_worlds_raise_at_make(env_id, overrides, message):
@@ -311,11 +517,9 @@ def test_gym_render_without_a_mode_warns_like_gymnasium():
 
 # ----------------------------------------------------------------------------- from_minigrid
 
-# MiniGrid levels whose class overrides MiniGridEnv.step (rules of their own).
+# MiniGrid levels whose class overrides MiniGridEnv.step (rules of their own), and has no
+# native level (those convert to it: NATIVE_OWN_STEP).
 OWN_STEP = [
-    "MiniGrid-Unlock-v0",
-    "MiniGrid-UnlockPickup-v0",
-    "MiniGrid-BlockedUnlockPickup-v0",
     "MiniGrid-Dynamic-Obstacles-5x5-v0",
     "MiniGrid-MemoryS7-v0",
     "MiniGrid-Fetch-5x5-N2-v0",
@@ -323,8 +527,13 @@ OWN_STEP = [
     "MiniGrid-GoToObject-6x6-N2-v0",
     "MiniGrid-PutNear-6x6-N2-v0",
     "MiniGrid-RedBlueDoors-6x6-v0",
-    "MiniGrid-KeyCorridorS3R1-v0",
 ]
+NATIVE_OWN_STEP = {
+    "MiniGrid-Unlock-v0": Unlock,
+    "MiniGrid-UnlockPickup-v0": UnlockPickup,
+    "MiniGrid-BlockedUnlockPickup-v0": BlockedUnlockPickup,
+    "MiniGrid-KeyCorridorS3R1-v0": KeyCorridor,
+}
 
 
 def _minigrid(env_id):
@@ -345,6 +554,17 @@ def test_from_minigrid_refuses_levels_with_their_own_step(env_id):
         from_minigrid(mg)
     env, state, _ = from_minigrid(mg, base_step=True)  # explicitly: the layout, base rules
     assert env.grid.shape == (mg.unwrapped.width, mg.unwrapped.height, 3)
+
+
+@pytest.mark.parametrize("env_id", list(NATIVE_OWN_STEP))
+def test_from_minigrid_converts_own_step_levels_with_a_native_level_to_it(env_id):
+    mg = _minigrid(env_id)
+    env, state, _ = from_minigrid(mg)
+    assert type(env) is NATIVE_OWN_STEP[env_id], type(env)  # its own rules, not FixedLevel's
+    assert env == jaxgrid.make(env_id)  # the registered id's configuration
+    np.testing.assert_array_equal(state.grid, mg.unwrapped.grid.encode())
+    env, _, _ = from_minigrid(mg, base_step=True)  # explicitly: the layout, base rules
+    assert isinstance(env, FixedLevel)
 
 
 def test_from_minigrid_converts_levels_with_the_base_step():
