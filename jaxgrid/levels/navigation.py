@@ -56,6 +56,14 @@ def _interior(cell, width: int, height: int) -> bool:
     )
 
 
+
+def _require_odd(level, why: str) -> None:
+    """``ValueError`` naming the field when the level's width or height is even."""
+    for field in ("width", "height"):
+        value = getattr(level, field)
+        if value % 2 == 0:
+            raise ValueError(f"{type(level).__name__}.{field} must be odd ({why}), got {value}")
+
 class FourRooms(Environment):
     """``FourRoomsEnv``: four rooms joined by one gap in each inner wall half; agent and goal
     anywhere.
@@ -74,13 +82,8 @@ class FourRooms(Environment):
 
     def __post_init__(self):
         super().__post_init__()
-        for field in ("width", "height"):
-            value = getattr(self, field)
-            if value % 2 == 0:
-                raise ValueError(
-                    f"FourRooms.{field} must be odd (the inner wall sits in the middle, with "
-                    f"rooms of equal size on both sides inside the outer walls), got {value}"
-                )
+        _require_odd(self, "the inner wall sits in the middle, with rooms of equal size on "
+                           "both sides inside the outer walls")  # fmt: skip
         for field in ("agent_start", "goal_start"):
             value = getattr(self, field)
             if value is not None and not _interior(value, self.width, self.height):
@@ -158,13 +161,7 @@ class Crossing(Environment):
                 f"Crossing.obstacle must be one of {sorted(OBSTACLES)}, got {self.obstacle!r}"
             )
         super().__post_init__()
-        for field in ("width", "height"):
-            value = getattr(self, field)
-            if value % 2 == 0:
-                raise ValueError(
-                    f"Crossing.{field} must be odd (rivers lie on the even rows and columns "
-                    f"strictly inside the walls), got {value}"
-                )
+        _require_odd(self, "rivers lie on the even rows and columns strictly inside the walls")
 
     def min_size(self):
         # An odd size s has s - 3 candidate rivers (its even rows and columns 2 .. s - 3); 5 is
