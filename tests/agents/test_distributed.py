@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import socket
 import subprocess
 import sys
@@ -28,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers.agents_cases import TINY
+from helpers.host_devices import ROOT, device_env
 
-ROOT = Path(__file__).resolve().parents[2]
 WORKER = ROOT / "tests" / "helpers" / "distributed_worker.py"
 # One update per chunk, so that every record is one update's metrics; 3 updates.
 CONFIG = dataclasses.replace(
@@ -38,18 +37,6 @@ CONFIG = dataclasses.replace(
 SEEDS = (0, 1)
 FINAL_EPISODES = 4
 TIMEOUT_S = 420  # for all three processes together
-
-
-def _env(devices: int) -> dict:
-    """A child's environment: this process's XLA flags (the same code generation), with
-    ``devices`` host devices."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    return {
-        **os.environ,
-        "XLA_FLAGS": f"{flags} --xla_force_host_platform_device_count={devices}".strip(),
-        "JAX_PLATFORMS": "cpu",
-        "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")]),
-    }
 
 
 def _free_port() -> int:
@@ -65,7 +52,7 @@ def _start(name: str, out: Path, devices: int, *args: str) -> tuple[subprocess.P
     seeds = ",".join(map(str, SEEDS))
     cmd = [sys.executable, str(WORKER), config, str(out), "--seeds", seeds, *args]
     with log.open("w") as f:  # a file, not a pipe: a chatty child never blocks on it
-        proc = subprocess.Popen(cmd, cwd=ROOT, env=_env(devices), stdout=f, stderr=f)
+        proc = subprocess.Popen(cmd, cwd=ROOT, env=device_env(devices), stdout=f, stderr=f)
     return proc, log
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import subprocess
 import sys
 import textwrap
@@ -27,11 +26,10 @@ from helpers.agents_cases import (
     count_compiles,
     leaves,
 )
+from helpers.host_devices import ROOT, device_env
 
 from agents.config import PPOConfig
 from agents.runner import NonFiniteError, run
-
-ROOT = Path(__file__).resolve().parents[2]
 
 # ------------------------------------------------------------------ multi-device process
 # Slow: a fresh process with 4 host devices compiles the sharded programs. When the test is
@@ -73,18 +71,6 @@ def _config_json(config: PPOConfig) -> str:
     return json.dumps(dataclasses.asdict(config))
 
 
-def _device_env(devices: int) -> dict:
-    """A child's environment: this process's XLA flags (so the same code generation), with
-    ``devices`` host devices."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    return {
-        **os.environ,
-        "XLA_FLAGS": f"{flags} --xla_force_host_platform_device_count={devices}".strip(),
-        "JAX_PLATFORMS": "cpu",
-        "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")]),
-    }
-
-
 @pytest.fixture(scope="module", autouse=True)
 def multi_device_process(request, tmp_path_factory):
     if not any(item.name == MULTI_DEVICE_TEST for item in request.session.items):
@@ -93,7 +79,7 @@ def multi_device_process(request, tmp_path_factory):
     out = tmp_path_factory.mktemp("multi_device")
     proc = subprocess.Popen(
         [sys.executable, "-c", MULTI_DEVICE_SCRIPT, _config_json(TINY), str(out)],
-        cwd=ROOT, env=_device_env(4), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        cwd=ROOT, env=device_env(4), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         text=True,
     )  # fmt: skip
     yield proc, out
@@ -262,7 +248,7 @@ def test_mesh_rejects_indivisible_env_batch(tiny_checker):
     six = dataclasses.replace(TINY, num_envs=6)
     proc = subprocess.run(
         [sys.executable, "-c", MESH_SCRIPT, _config_json(six)],
-        cwd=ROOT, env=_device_env(4), capture_output=True, text=True, timeout=300,
+        cwd=ROOT, env=device_env(4), capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-4000:]
     result = json.loads(proc.stdout.strip().splitlines()[-1])

@@ -147,7 +147,8 @@ def jax_rollout(env: Environment, states, actions):
     """``vmap`` over episodes of a ``lax.scan`` of ``env.step`` over ``actions`` ``(B, T)``.
 
     Returns ``(reset observations, per-step outputs)`` with the same field names as
-    :class:`Episode` (arrays ``(B, T, ...)``).
+    :class:`Episode` (arrays ``(B, T, ...)``). ``env`` may also be a level with its own
+    ``step`` (one compile per level configuration).
     """
 
     def episode(state, acts):

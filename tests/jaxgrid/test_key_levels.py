@@ -6,8 +6,8 @@
   colour/state counts per type. Each marginal must have the same support (a category drawn
   k times on one side only fails when seeing it never on the other side has Poisson
   probability below ``ALPHA`` divided by the number of categories) and pass a two-sample
-  chi-square homogeneity test at ``ALPHA``, after merging the categories expected below 5
-  samples into one.
+  chi-square homogeneity test at ``ALPHA`` (``helpers.layout_stats``), after merging the
+  categories expected below 5 samples into one.
   Marginals of objects present once per layout are i.i.d. across layouts; those pooling the
   closed doors of KeyCorridor (a variable number per layout) are approximately so. All seeds
   are fixed, so the outcome is deterministic.
@@ -25,7 +25,6 @@
 from __future__ import annotations
 
 import collections
-import functools
 import time
 
 import gymnasium as gym
@@ -34,11 +33,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers import minigrid_reference as R
-from helpers.xla import CHEAP
+from helpers.layout_stats import (
+    cell_id,
+    compare_distributions,
+    jax_reset_states,
+    minigrid_resets,
+    single_cell,
+)
 from minigrid.core.mission import MissionSpace
 from minigrid.core.roomgrid import RoomGrid
 from minigrid.envs import BlockedUnlockPickupEnv, KeyCorridorEnv, UnlockEnv, UnlockPickupEnv
-from scipy.stats import chi2_contingency
 
 import jaxgrid
 from jaxgrid.compat import from_minigrid
@@ -65,8 +69,6 @@ from jaxgrid.levels import BlockedUnlockPickup, KeyCorridor, Unlock, UnlockPicku
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.levels.keys import IDS
 
-ALPHA = 1e-4
-N_JAX = 6000
 N_MINIGRID = 3000
 N_MINIGRID_DEFAULT = 2000  # the default run's layout tests (the others run with -m slow)
 UNLOCKS = ["MiniGrid-Unlock-v0", "MiniGrid-UnlockPickup-v0", "MiniGrid-BlockedUnlockPickup-v0"]
@@ -83,68 +85,10 @@ def _param(env_id, default):
 # ------------------------------------------------------------------------------ layouts
 
 
-def jax_resets(env, n, seed=0):
-    reset = jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)
-    states, _ = reset(jax.random.split(jax.random.PRNGKey(seed), n))
-    return jax.tree.map(np.asarray, states)
-
-
-def minigrid_resets(mg, n, seed=0):
-    grids, pos, dirs, targets = [], [], [], []
-    mg.reset(seed=seed)  # seed once; later resets continue the same RNG stream
-    for i in range(n):
-        if i:
-            mg.reset()
-        grids.append(mg.grid.encode())
-        pos.append(tuple(mg.agent_pos))
-        dirs.append(int(mg.agent_dir))
-        target = mg.door if isinstance(mg, UnlockEnv) else mg.obj
-        targets.append((*target.encode()[:2], *target.cur_pos))
-    return np.stack(grids), np.array(pos), np.array(dirs), np.array(targets)
-
-
-def _table(values) -> dict:
-    keys, counts = np.unique(values, return_counts=True)
-    return dict(zip(keys.tolist(), counts.tolist(), strict=True))
-
-
-def compare_distributions(name, ours, ref, alpha=ALPHA) -> float:
-    """Support check and chi-square homogeneity test; returns the p-value."""
-    mine, theirs = _table(ours), _table(ref)
-    sizes = {"jaxgrid": len(ours), "MiniGrid": len(ref)}
-    for a, b, side, other in (
-        (mine, theirs, "jaxgrid", "MiniGrid"),
-        (theirs, mine, "MiniGrid", "jaxgrid"),
-    ):
-        # k draws on one side, none on the other: Poisson P(0) = exp(-k * n_other / n_side),
-        # against alpha shared among the categories (Bonferroni)
-        scale, share = sizes[other] / sizes[side], alpha / len(set(mine) | set(theirs))
-        lone = {c: n for c, n in a.items() if c not in b and np.exp(-n * scale) < share}
-        assert not lone, f"{name}: only {side} draws {lone}"
-    cats = sorted(set(mine) | set(theirs))
-    counts = np.array([[mine.get(c, 0) for c in cats], [theirs.get(c, 0) for c in cats]])
-    expected = counts.sum(axis=0) * counts.sum(axis=1, keepdims=True) / counts.sum()
-    small = expected.min(axis=0) < 5
-    if small.any():
-        counts = np.concatenate([counts[:, ~small], counts[:, small].sum(1, keepdims=True)], 1)
-    if counts.shape[1] < 2:
-        return 1.0
-    p = float(chi2_contingency(counts).pvalue)
-    tv = 0.5 * np.abs(counts[0] / counts[0].sum() - counts[1] / counts[1].sum()).sum()
-    assert p > alpha, f"{name}: chi-square p={p:.2e}, TV={tv:.3f}\n ours {mine}\n ref  {theirs}"
-    return p
-
-
-def cell_id(xy, height):
-    xy = np.asarray(xy)
-    return xy[..., 0] * height + xy[..., 1]
-
-
-def only(grids, mask):
-    """``(x, y)`` of the single ``True`` cell of ``mask`` in every grid."""
-    assert (mask.sum(axis=(1, 2)) == 1).all(), "not exactly one such object per grid"
-    flat = mask.reshape(len(grids), -1).argmax(axis=1)
-    return np.stack(np.unravel_index(flat, grids.shape[1:3]), axis=-1)
+def target_of(mg):
+    """``(kind, colour, x, y)`` of the object a MiniGrid layout's task is about."""
+    target = mg.door if isinstance(mg, UnlockEnv) else mg.obj
+    return (*target.encode()[:2], *target.cur_pos)
 
 
 def lattice(width, height, room_size):
@@ -169,8 +113,8 @@ def layout_choices(env, grids, pos, dirs, targets):
     front = pos + DIR_TO_VEC[dirs]
     # placed last but connect_all: the agent never starts facing an object other than a door
     assert np.isin(kinds[rows, front[:, 0], front[:, 1]], (EMPTY, WALL, DOOR)).all()
-    locked = only(grids, (kinds == DOOR) & (grids[..., 2] == LOCKED))
-    key = only(grids, kinds == KEY)
+    locked = single_cell(grids, (kinds == DOOR) & (grids[..., 2] == LOCKED))
+    key = single_cell(grids, kinds == KEY)
     door_colour = grids[rows, locked[:, 0], locked[:, 1], 1]
     assert (grids[rows, key[:, 0], key[:, 1], 1] == door_colour).all(), "key opens the door"
     agent = cell_id(pos, h)
@@ -210,7 +154,7 @@ def layout_choices(env, grids, pos, dirs, targets):
         blocked = isinstance(env, BlockedUnlockPickup)
         assert (objects.sum(axis=(1, 2)) == 3 + blocked).all()
         if blocked:  # the ball sits in front of the door, on the agent's side
-            ball = only(grids, kinds == BALL)
+            ball = single_cell(grids, kinds == BALL)
             assert (ball == locked - [1, 0]).all()
         out["target_and_key"] = out["target_cell"] * w * h + out["key_cell"]
     else:
@@ -261,11 +205,11 @@ LAYOUT_P = collections.defaultdict(dict)  # id -> marginal -> p (read by the slo
 def test_layout_distribution(env_id):
     env = jaxgrid.make(env_id)
     n_mg = N_MINIGRID if env_id not in DEFAULT_LAYOUTS else N_MINIGRID_DEFAULT
-    st = jax_resets(env, 2 * n_mg)
+    st = jax_reset_states(env, 2 * n_mg)
     m = st.extras
     targets = np.concatenate([m.kind[:, None], m.colour[:, None], m.pos], axis=1)
     ours = layout_choices(env, st.grid, st.agent_pos, st.agent_dir, targets)
-    ref = layout_choices(env, *minigrid_resets(R.make_reference(env_id), n_mg))
+    ref = layout_choices(env, *minigrid_resets(R.make_reference(env_id), n_mg, extra=target_of))
     assert set(ours) == set(ref)
     for name in ours:
         LAYOUT_P[env_id][name] = compare_distributions(f"{env_id} {name}", ours[name], ref[name])
@@ -310,11 +254,11 @@ def test_custom_size_layout_distribution(cls, mg_cls, room_size):
         mg = _sized(mg_cls, room_size, 8)
         width, height = 2 * room_size - 1, room_size
         env = cls(width=width, height=height, max_steps=100, room_size=room_size)
-    st = jax_resets(env, 2 * N_MINIGRID)
+    st = jax_reset_states(env, 2 * N_MINIGRID)
     m = st.extras
     targets = np.concatenate([m.kind[:, None], m.colour[:, None], m.pos], axis=1)
     ours = layout_choices(env, st.grid, st.agent_pos, st.agent_dir, targets)
-    ref = layout_choices(env, *minigrid_resets(mg, N_MINIGRID))
+    ref = layout_choices(env, *minigrid_resets(mg, N_MINIGRID, extra=target_of))
     p = {
         name: compare_distributions(f"{cls.__name__} {room_size}", ours[name], ref[name])
         for name in ours
@@ -330,7 +274,7 @@ def test_layout_test_detects_the_next_to_agent_rule():
     (8, 3)) is caught by the support check."""
     ref = layout_choices(
         jaxgrid.make("MiniGrid-UnlockPickup-v0"),
-        *minigrid_resets(R.make_reference("MiniGrid-UnlockPickup-v0"), 500),
+        *minigrid_resets(R.make_reference("MiniGrid-UnlockPickup-v0"), 500, extra=target_of),
     )
     assert not {8 * 6 + 3, 7 * 6 + 3, 9 * 6 + 3, 8 * 6 + 2, 8 * 6 + 4} & set(ref["box_cells"])
     rng = np.random.default_rng(0)
@@ -478,31 +422,6 @@ class Planner:
         return True
 
 
-@functools.partial(jax.jit, static_argnums=0, compiler_options=CHEAP)
-def rollout(env, states, actions):
-    """``vmap`` over episodes of a ``lax.scan`` of the level's own ``step`` (per-step outputs
-    named as :class:`helpers.minigrid_reference.Episode`'s fields)."""
-
-    def episode(state, acts):
-        def body(s, a):
-            s, ts = env.step(s, a)
-            out = {
-                "image": ts.observation["image"],
-                "direction": ts.observation["direction"],
-                "reward": ts.reward,
-                "terminated": ts.terminated,
-                "truncated": ts.truncated,
-                "grid": s.grid,
-                "agent_pos": s.agent_pos,
-                "carrying": s.carrying,
-            }
-            return s, out
-
-        return env.observe(state), jax.lax.scan(body, state, acts)[1]
-
-    return jax.vmap(episode)(states, actions)
-
-
 def _pad(actions, num_steps, fill):
     actions = list(actions)[:num_steps]
     return np.array(actions + list(fill[len(actions) :]), np.int32)
@@ -515,7 +434,7 @@ def _pad(actions, num_steps, fill):
 def test_every_reset_is_solved_by_the_scripted_solution(env_id):
     env = jaxgrid.make(env_id)
     n = 64 if env_id == "MiniGrid-BlockedUnlockPickup-v0" else 256  # the default run's: 64
-    states = jax_resets(env, n, seed=3)
+    states = jax_reset_states(env, n, seed=3)
     plans = []
     for b in range(n):
         planner = Planner(states.grid[b], states.agent_pos[b], states.agent_dir[b])
@@ -523,7 +442,7 @@ def test_every_reset_is_solved_by_the_scripted_solution(env_id):
         plans.append(planner.actions)
     length = max(map(len, plans))
     actions = np.stack([_pad(p, length, [DONE] * length) for p in plans])
-    _, outs = rollout(env, jax.tree.map(jnp.asarray, states), jnp.asarray(actions))
+    _, outs = R.jax_rollout(env, jax.tree.map(jnp.asarray, states), jnp.asarray(actions))
     done_at = np.array([len(p) - 1 for p in plans])
     rows = np.arange(n)
     assert outs["terminated"][rows, done_at].all(), "the last scripted action succeeds"
@@ -571,7 +490,7 @@ def differential(env_id, seeds, num_steps=MAX_T, encode_every_step=False, after_
             R.record_episode(mg, actions, seed=seed, encode_every_step=encode_every_step)
         )
     actions = np.stack([ep.actions for ep in episodes])
-    obs0, outs = rollout(env, R.stack(states), jnp.asarray(actions))
+    obs0, outs = R.jax_rollout(env, R.stack(states), jnp.asarray(actions))
     R.compare(f"{env_id} own step", episodes, obs0, outs)
     return episodes
 

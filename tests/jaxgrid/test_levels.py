@@ -3,27 +3,31 @@
 Many vmapped jaxgrid resets and many MiniGrid resets (one seeded RNG stream) are reduced to the
 random choices each generator makes (split column, door row, agent cell and direction, key
 cell, lava gap); each marginal (and a few joints) must (a) have the same support and (b) pass a
-two-sample chi-square homogeneity test at ``ALPHA``. All seeds are fixed, so the outcome is
-deterministic; at these sizes every marginal passed with p > 0.05. Sensitivity was
-checked when the test was written: shifting a support by one (every value + 1, or only the
-largest, e.g. the door row drawn from ``[1, w - 1)``) fails every marginal, by the support check
-or with p < 1e-6, and moving 10% of the samples of a low-cardinality marginal (split column, door
-row, direction, gap) to the neighbouring value fails with p < 1e-4.
+two-sample chi-square homogeneity test at ``ALPHA`` (``helpers.layout_stats``). All seeds are
+fixed, so the outcome is deterministic; at these sizes every marginal passed with p > 0.05.
+Sensitivity was checked when the test was written: shifting a support by one (every value + 1,
+or only the largest, e.g. the door row drawn from ``[1, w - 1)``) fails every marginal, by the
+support check or with p < 1e-6, and moving 10% of the samples of a low-cardinality marginal
+(split column, door row, direction, gap) to the neighbouring value fails with p < 1e-4.
 Every sample is also checked structurally (the fixed parts: borders, goal, door colour/state,
 one key on the agent's side and not under the agent, lava strip).
 """
 
 from __future__ import annotations
 
-import jax
 import numpy as np
 import pytest
 from helpers import minigrid_reference as R
-from helpers.xla import CHEAP
+from helpers.layout_stats import (
+    assert_same_support_and_chi2,
+    cell_id,
+    jax_resets,
+    minigrid_resets,
+    only,
+)
 from minigrid.core.mission import MissionSpace
 from minigrid.envs.doorkey import DoorKeyEnv
 from minigrid.minigrid_env import MiniGridEnv
-from scipy.stats import chi2_contingency
 
 import jaxgrid
 from jaxgrid.constants import DOOR, EMPTY, GOAL, GREEN, GREY, KEY, LAVA, LOCKED, RED, WALL, YELLOW
@@ -31,57 +35,6 @@ from jaxgrid.levels import DoorKey
 
 N_JAX = 6000
 N_MINIGRID = 3000
-ALPHA = 1e-4
-
-
-def jax_resets(env, n=N_JAX, seed=0):
-    reset = jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)
-    states, _ = reset(jax.random.split(jax.random.PRNGKey(seed), n))
-    return (np.asarray(states.grid), np.asarray(states.agent_pos), np.asarray(states.agent_dir))
-
-
-def minigrid_resets(mg, n=N_MINIGRID, seed=0):
-    grids, pos, dirs = [], [], []
-    mg.reset(seed=seed)  # seed once; later resets continue the same RNG stream
-    for i in range(n):
-        if i:
-            mg.reset()
-        grids.append(mg.grid.encode())
-        pos.append(tuple(mg.agent_pos))
-        dirs.append(int(mg.agent_dir))
-    return np.stack(grids), np.array(pos), np.array(dirs)
-
-
-def _table(values) -> dict:
-    keys, counts = np.unique(values, return_counts=True)
-    return dict(zip(keys.tolist(), counts.tolist(), strict=True))
-
-
-def assert_same_distribution(name, ours, ref, alpha=ALPHA):
-    """Same support and a two-sample chi-square homogeneity test with p > ``alpha``."""
-    ours, ref = np.asarray(ours), np.asarray(ref)
-    mine, theirs = _table(ours), _table(ref)
-    assert set(mine) == set(theirs), f"{name}: support {sorted(mine)} vs MiniGrid {sorted(theirs)}"
-    if len(mine) == 1:
-        return
-    cats = sorted(mine)
-    counts = np.array([[mine[c] for c in cats], [theirs[c] for c in cats]])
-    p = chi2_contingency(counts).pvalue
-    tv = 0.5 * np.abs(counts[0] / counts[0].sum() - counts[1] / counts[1].sum()).sum()
-    assert p > alpha, f"{name}: chi-square p={p:.2e}, TV={tv:.3f}\n ours {mine}\n ref  {theirs}"
-
-
-def cell_id(xy, height):
-    xy = np.asarray(xy)
-    return xy[..., 0] * height + xy[..., 1]
-
-
-def only(grids, kind):
-    """``(x, y)`` of the single cell of ``kind`` in every grid (asserts there is exactly one)."""
-    mask = grids[..., 0] == kind
-    assert (mask.sum(axis=(1, 2)) == 1).all(), f"not exactly one object {kind} per grid"
-    flat = mask.reshape(len(grids), -1).argmax(axis=1)
-    return np.stack(np.unravel_index(flat, grids.shape[1:3]), axis=-1)
 
 
 def check_border_and_goal(grids):
@@ -130,10 +83,10 @@ def doorkey_choices(grids, pos, dirs):
 @pytest.mark.parametrize("size", [pytest.param(5, marks=pytest.mark.slow), 8])
 def test_doorkey_layout_distribution(size):
     env_id = f"MiniGrid-DoorKey-{size}x{size}-v0"
-    ours = doorkey_choices(*jax_resets(jaxgrid.make(env_id)))
-    ref = doorkey_choices(*minigrid_resets(R.make_reference(env_id)))
+    ours = doorkey_choices(*jax_resets(jaxgrid.make(env_id), N_JAX))
+    ref = doorkey_choices(*minigrid_resets(R.make_reference(env_id), N_MINIGRID))
     for name in ours:
-        assert_same_distribution(f"{env_id} {name}", ours[name], ref[name])
+        assert_same_support_and_chi2(f"{env_id} {name}", ours[name], ref[name])
 
 
 class RectDoorKey(DoorKeyEnv):
@@ -157,7 +110,7 @@ def test_doorkey_non_square_door_row(width, height):
     ours = doorkey_choices(grids, pos, dirs)
     ref = doorkey_choices(*minigrid_resets(RectDoorKey(width, height), n=1000))
     for name in ("door_row", "split", "agent_cell"):
-        assert_same_distribution(f"DoorKey {width}x{height} {name}", ours[name], ref[name])
+        assert_same_support_and_chi2(f"DoorKey {width}x{height} {name}", ours[name], ref[name])
 
 
 # --------------------------------------------------------------------------------- LavaGap
@@ -186,10 +139,10 @@ def lavagap_choices(grids, pos, dirs):
 @pytest.mark.parametrize("size", [pytest.param(5, marks=pytest.mark.slow), 7])
 def test_lavagap_layout_distribution(size):
     env_id = f"MiniGrid-LavaGapS{size}-v0"
-    ours = lavagap_choices(*jax_resets(jaxgrid.make(env_id)))
-    ref = lavagap_choices(*minigrid_resets(R.make_reference(env_id)))
+    ours = lavagap_choices(*jax_resets(jaxgrid.make(env_id), N_JAX))
+    ref = lavagap_choices(*minigrid_resets(R.make_reference(env_id), N_MINIGRID))
     for name in ours:
-        assert_same_distribution(f"{env_id} {name}", ours[name], ref[name])
+        assert_same_support_and_chi2(f"{env_id} {name}", ours[name], ref[name])
 
 
 # ----------------------------------------------------------------------------------- Empty
@@ -206,10 +159,10 @@ def empty_choices(grids, pos, dirs):
 @pytest.mark.parametrize("size", [5, pytest.param(6, marks=pytest.mark.slow)])
 def test_empty_random_layout_distribution(size):
     env_id = f"MiniGrid-Empty-Random-{size}x{size}-v0"
-    ours = empty_choices(*jax_resets(jaxgrid.make(env_id)))
-    ref = empty_choices(*minigrid_resets(R.make_reference(env_id)))
+    ours = empty_choices(*jax_resets(jaxgrid.make(env_id), N_JAX))
+    ref = empty_choices(*minigrid_resets(R.make_reference(env_id), N_MINIGRID))
     for name in ours:
-        assert_same_distribution(f"{env_id} {name}", ours[name], ref[name])
+        assert_same_support_and_chi2(f"{env_id} {name}", ours[name], ref[name])
 
 
 @pytest.mark.parametrize("size", [5, 6, 8, 16])

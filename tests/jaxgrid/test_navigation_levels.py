@@ -21,14 +21,13 @@ samples and seeds, and the non-registered settings (other sizes, fixed agent or 
 
 from __future__ import annotations
 
-import functools
 import zlib
 
 import jax
 import numpy as np
 import pytest
 from helpers import minigrid_reference as R
-from helpers.xla import CHEAP
+from helpers.layout_stats import ALPHA, cell_id, jax_resets, minigrid_resets, only, reset_fn
 from minigrid.core.mission import MissionSpace
 from minigrid.envs import CrossingEnv, FourRoomsEnv
 from minigrid.minigrid_env import MiniGridEnv
@@ -50,34 +49,8 @@ from jaxgrid.constants import (
 from jaxgrid.levels import Crossing, DistShift, FourRooms
 from jaxgrid.levels.navigation import IDS
 
-ALPHA = 1e-4
 N_JAX, N_MINIGRID = 4000, 2000
 SLOW_N_JAX, SLOW_N_MINIGRID = 12000, 6000
-
-
-# ------------------------------------------------------------------------------ sampling
-
-
-@functools.cache
-def _reset_fn(env):
-    return jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)
-
-
-def jax_resets(env, n, seed=0):
-    states, _ = _reset_fn(env)(jax.random.split(jax.random.PRNGKey(seed), n))
-    return np.asarray(states.grid), np.asarray(states.agent_pos), np.asarray(states.agent_dir)
-
-
-def minigrid_resets(mg, n, seed=0):
-    grids, pos, dirs = [], [], []
-    mg.reset(seed=seed)  # seed once; later resets continue the same RNG stream
-    for i in range(n):
-        if i:
-            mg.reset()
-        grids.append(mg.grid.encode())
-        pos.append(tuple(int(c) for c in mg.agent_pos))
-        dirs.append(int(mg.agent_dir))
-    return np.stack(grids), np.array(pos), np.array(dirs)
 
 
 # ------------------------------------------------------------------------------ statistics
@@ -184,19 +157,6 @@ def bfs_lengths(grids, pos):
         if not frontier.any():
             break
     return dist
-
-
-def cell_id(xy, height):
-    xy = np.asarray(xy)
-    return xy[..., 0] * height + xy[..., 1]
-
-
-def only(grids, kind):
-    """``(x, y)`` of the single cell of ``kind`` in every grid (asserts there is exactly one)."""
-    mask = grids[..., 0] == kind
-    assert (mask.sum(axis=(1, 2)) == 1).all(), f"not exactly one object {kind} per grid"
-    flat = mask.reshape(len(grids), -1).argmax(axis=1)
-    return np.stack(np.unravel_index(flat, grids.shape[1:3]), axis=-1)
 
 
 def common_choices(grids, pos, dirs):
@@ -484,7 +444,7 @@ def native_run(env_id, num, key_seed, num_steps=MAX_T, **kw):
     env = jaxgrid.make(env_id)
     mg = R.make_reference(env_id)
     cfg = R.config_env(env)
-    states, ts = _reset_fn(env)(jax.random.split(jax.random.PRNGKey(key_seed), num))
+    states, ts = reset_fn(env)(jax.random.split(jax.random.PRNGKey(key_seed), num))
     num_steps = min(env.max_steps, num_steps)
     seed = zlib.crc32(env_id.encode()) + key_seed
     actions = R.draw_actions(seed, num, num_steps)
