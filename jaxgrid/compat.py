@@ -84,11 +84,7 @@ def from_minigrid(
     if native is not None:
         return _convert_native(env, native, grid, carrying, pos, key)
     jenv = FixedLevel(
-        width=env.grid.width,
-        height=env.grid.height,
-        max_steps=int(env.max_steps),
-        view_size=int(env.agent_view_size),
-        see_through_walls=bool(env.see_through_walls),
+        **_settings(env),
         layout=np.ascontiguousarray(grid, np.uint8).tobytes(),
         agent_start=pos,
         agent_dir=int(env.agent_dir),
@@ -118,16 +114,20 @@ def _native_family(env):
     return native
 
 
-def _convert_native(env, native, grid, carrying, pos, key):
-    """``(native env, state, timestep)`` continuing ``env``'s episode under its own rules."""
-    settings = dict(
+def _settings(env) -> dict:
+    """The settings every converted level takes from the MiniGrid env."""
+    return dict(
         width=env.grid.width,
         height=env.grid.height,
         max_steps=int(env.max_steps),
         view_size=int(env.agent_view_size),
         see_through_walls=bool(env.see_through_walls),
-        room_size=int(env.room_size),
     )
+
+
+def _convert_native(env, native, grid, carrying, pos, key):
+    """``(native env, state, timestep)`` continuing ``env``'s episode under its own rules."""
+    settings = dict(_settings(env), room_size=int(env.room_size))
     if native is keys.KeyCorridor:
         settings.update(num_rows=int(env.num_rows), num_cols=int(env.num_cols))
     elif (env.num_rows, env.num_cols) != (1, 2):
