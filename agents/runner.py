@@ -366,8 +366,7 @@ class _Programs:
             config, learner = self.learner.config, self.learner
             key = jax.random.PRNGKey(config.eval_seed + 1)
             def final(params, hparams):
-                threshold = hparams.get("checker_threshold")
-                out = summarise(learner.evaluate(params, key, num_episodes, threshold=threshold))
+                out = summarise(learner.evaluate(params, key, num_episodes, hparams=hparams))
                 if learner.shield is not None:  # the policy alone, too
                     off = learner.evaluate(params, key, num_episodes, shielded=False)
                     out["unshielded"] = summarise(off)

@@ -108,11 +108,12 @@ class Learner(struct.PyTreeNode):
         config's constant (so that a run without a sweep compiles the same program)."""
         return runner.hparams[name] if name in runner.hparams else getattr(self.config, name)
 
-    def shield_of(self, runner: RunnerState):
-        """The shield with the agent's ``checker_threshold`` (None outside the shield modes)."""
-        if self.shield is None or "checker_threshold" not in runner.hparams:
+    def shield_for(self, hparams: dict):
+        """The shield at the agent's swept ``checker_threshold`` where ``hparams`` (a
+        :class:`RunnerState`'s) holds one (None outside the shield modes)."""
+        if self.shield is None or "checker_threshold" not in hparams:
             return self.shield
-        return self.shield.replace(threshold=runner.hparams["checker_threshold"])
+        return self.shield.replace(threshold=hparams["checker_threshold"])
 
     def novelty_at(self, update: jax.Array) -> jax.Array:
         """The novelty bonus of update ``update``: ``novelty_bonus`` annealed linearly to 0
@@ -167,7 +168,7 @@ class Learner(struct.PyTreeNode):
         step = functools.partial(
             rollout.env_step, config=self.config, env=self.envs,
             policy=self.policy(runner.params, lang_table), table=self.table, words=self.words,
-            checker=self.checker, shield=self.shield_of(runner),
+            checker=self.checker, shield=self.shield_for(runner.hparams),
             penalty=self.penalty_at(runner.update, self.hparam(runner, "penalty")),
             novelty=self.novelty_at(runner.update),
             threshold=self.hparam(runner, "checker_threshold"),
@@ -283,18 +284,16 @@ class Learner(struct.PyTreeNode):
         return jax.random.categorical(key, logits)
 
     def evaluate(
-        self, params, key, num_episodes: int, env=None, shielded: bool = True, threshold=None
+        self, params, key, num_episodes: int, env=None, shielded: bool = True, hparams=None
     ):
         """Per-episode results of :func:`agents.evaluation.play_episodes` (fixed ``key`` =
         fixed episodes) on the raw env (or ``env``): in the shield modes with the shield on
-        (as deployed; at ``threshold``, None: the config's) unless ``shielded`` is False
-        (the policy alone)."""
+        (as deployed; at the agent's swept threshold in ``hparams``, if any) unless
+        ``shielded`` is False (the policy alone)."""
         env = self.env if env is None else env
         if self.shield is None or not shielded:
             return play_episodes(env, lambda o, k: self.act(params, o, k), key, num_episodes)
-        shield = self.shield.replace(env=env)
-        if threshold is not None:
-            shield = shield.replace(threshold=threshold)
+        shield = self.shield_for(hparams or {}).replace(env=env)
         act = lambda o, k, allowed: self.act(params, o, k, allowed)  # noqa: E731
         return play_episodes(env, act, key, num_episodes, shield=shield)
 
@@ -304,10 +303,10 @@ class Learner(struct.PyTreeNode):
             lambda r, _: self.update(r), runner, None, self.config.eval_every
         )
         eval_key = jax.random.PRNGKey(self.config.eval_seed)
-        threshold = runner.hparams.get("checker_threshold")
         evaluation = summarise(
-            self.evaluate(runner.params, eval_key, self.config.eval_episodes, threshold=threshold)
-        )
+            self.evaluate(runner.params, eval_key, self.config.eval_episodes,
+                          hparams=runner.hparams)
+        )  # fmt: skip
         return runner, {"train": metrics, "eval": evaluation}
 
 

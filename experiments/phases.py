@@ -454,10 +454,11 @@ def write_sweep(cfg, out: Path, runs: dict, checker_report: dict, total_s: float
                "seeds": cfg.seeds, "rows": rows, "throughput": throughput,
                "total_s": float(total_s)}  # fmt: skip
     write_json(out / "sweep.json", summary)
-    (out / "sweep.md").write_text(sweep_table(summary))
+    table = sweep_table(summary)
+    (out / "sweep.md").write_text(table)
     plot_sweep(summary, out / "sweep.png", f"{cfg.experiment} ({cfg.env_id}): {name} sweep")
     paths += [out / "sweep.json", out / "sweep.md", out / "sweep.png"]
-    print(sweep_table(summary))
+    print(table)
     print("outputs:\n" + "\n".join(f"  {p}" for p in paths if Path(p).exists()))
     return summary
 
