@@ -548,6 +548,11 @@ def measure(
     return result
 
 
+def impl_name(env_name: str) -> str:
+    """How results name the learner on ``env_name``: on NAVIX, or on jaxgrid."""
+    return "purejaxrl-navix" if env_name.startswith("Navix-") else "purejaxrl-jaxgrid"
+
+
 def machine_baseline(timesteps: int = 2**19) -> dict[str, Any]:
     """This machine's reference figure: the PureJaxRL-style learner's steps/s at the default
     sizes, on NAVIX DoorKey-8x8 where NAVIX imports, else on jaxgrid's DoorKey-8x8 (``env``
@@ -560,8 +565,7 @@ def machine_baseline(timesteps: int = 2**19) -> dict[str, Any]:
     except Exception:  # not installed, or not importable with this jax
         env_name = "MiniGrid-DoorKey-8x8-v0"
     res = measure(total_timesteps=timesteps, env_name=env_name)
-    impl = "purejaxrl-navix" if env_name == DEFAULT_ENV else "purejaxrl-jaxgrid"
-    return {"impl": impl, "env": env_name, "sps": round(res["sps"], 1),
+    return {"impl": impl_name(env_name), "env": env_name, "sps": round(res["sps"], 1),
             "compile_s": round(res["compile_s"], 2), "device": res["device"],
             "timesteps": res["total_timesteps"]}  # fmt: skip
 
@@ -612,7 +616,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         env_name=args.env,
     )
     line = {
-        "impl": "purejaxrl-navix" if args.env.startswith("Navix-") else "purejaxrl-jaxgrid",
+        "impl": impl_name(args.env),
         "env": args.env,
         "sps": round(res["sps"], 1),
         "compile_s": round(res["compile_s"], 2),
