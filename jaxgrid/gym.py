@@ -30,7 +30,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from jaxgrid.language import MAX_LEN, vocab_size
+from jaxgrid import language
 from jaxgrid.registry import make, registered_ids
 from jaxgrid.render import render, render_ansi
 from jaxgrid.wrappers import BatchedAutoReset
@@ -47,7 +47,8 @@ def observation_space(env) -> spaces.Dict:
 
     ``image``: Box uint8 ``(V, V, 3)`` in ``[0, 255]`` (MiniGrid's encoding, indexed ``[x, y]``),
     ``direction``: Discrete(4), and for scenarios ``constraint``: Box int32 ``(MAX_LEN,)`` of
-    token ids in ``[0, vocab_size)``.
+    token ids in ``[0, vocab_size)`` of the env's ``language`` (:mod:`jaxgrid.language` unless
+    the env names another, as HazardRooms names :mod:`jaxgrid.hazard_language`).
     """
     v = env.view_size
     obs = {
@@ -56,7 +57,8 @@ def observation_space(env) -> spaces.Dict:
     }
     probe = jax.eval_shape(lambda k: env.reset(k)[1].observation, jax.random.PRNGKey(0))
     if "constraint" in probe:
-        obs["constraint"] = spaces.Box(0, vocab_size() - 1, (MAX_LEN,), np.int32)
+        lang = getattr(env, "language", language)
+        obs["constraint"] = spaces.Box(0, lang.vocab_size() - 1, (lang.MAX_LEN,), np.int32)
     return spaces.Dict(obs)
 
 

@@ -122,7 +122,8 @@ def oracle_action(
 
     Args:
         state: a single (unbatched) state; ``vmap`` for batches. If ``state.extras`` has a
-            ``constraint`` (scenarios), doors of its ``door_colour`` are never entered.
+            ``constraint`` (scenarios), doors of its ``door_colour`` are never entered; if it has
+            a ``monitor`` (:mod:`jaxgrid.monitor`), no clause's forbidden zone is entered.
         env: unused (everything is read from ``state``); accepted so the call mirrors
             ``env.step(state, action)``.
         obey_constraint: bool (may be traced); ``False`` plans as if no door were forbidden.
@@ -133,10 +134,13 @@ def oracle_action(
     kind = grid[..., 0]
     constraint = getattr(state.extras, "constraint", None)  # static: the pytree's structure
     forbidden = jnp.int32(-1)
-    if constraint is not None:
+    if hasattr(constraint, "door_colour"):
         forbidden = jnp.where(obey_constraint, constraint.door_colour, forbidden)
 
     passable = passable_cells(grid, state.carrying, forbidden, avoid_lava=avoid_lava)
+    monitor = getattr(state.extras, "monitor", None)  # rich constraints: their forbidden zones
+    if monitor is not None:
+        passable = passable & ~(jnp.any(monitor.zone, 0) & obey_constraint)
     # Field 0 leads to the goal, field 1 to a key (used when the goal is out of reach).
     targets = jnp.stack([kind == GOAL, kind == KEY])
     dist = distance_field(targets, jnp.broadcast_to(passable, targets.shape))
@@ -189,7 +193,8 @@ def rollout_oracle(
     * ``violations``: int32, steps whose ``info["violation"]`` was set (0 if there is none);
     * ``length``: int32, steps taken until the episode ended (``max_steps`` if it did not);
     * ``done``: bool, the episode terminated or was truncated within ``max_steps``;
-    * ``constraint_type``: int32, paper type 1-5 (0 for envs without a constraint);
+    * ``constraint_type``: int32, paper type 1-5 (0 for envs without a constraint); for a
+      :mod:`jaxgrid.hazard_language` constraint, its index in ``CONSTRAINT_TYPES``;
     * ``door_colour`` and ``forbids_lava``: the episode's constraint (-1 / False if none).
 
     The loop is jitted once per environment configuration, episode count and horizon; the
@@ -236,6 +241,8 @@ def _rollout(env, key, obey_constraint, avoid_lava, *, num_episodes, horizon):
     constraint = getattr(states.extras, "constraint", None)
     if constraint is None:
         ctype, colour, lava = zeros_i, zeros_i - 1, zeros_b
+    elif not hasattr(constraint, "door_colour"):  # a rich constraint: its type id
+        ctype, colour, lava = constraint.type_id, zeros_i - 1, zeros_b
     else:
         ctype, colour, lava = constraint.paper_type, constraint.door_colour, constraint.forbids_lava
     return {

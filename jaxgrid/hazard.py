@@ -1,0 +1,409 @@
+"""``HazardRooms-v0``: four rooms with costly hazards, under a rich language constraint.
+
+A 13x13 grid split into four 5x5 rooms by a cross of walls, with one closed door in each of
+the four wall segments (four distinct colours of the five non-green ones). The agent starts
+in one room and the goal lies in the opposite one, so there are two routes, each through two
+doors. A key lies in the agent's room. Strips of three cells of lava and of coloured floor
+("water" is blue, "grass" green, and yellow floor) are scattered over the rooms, never on the
+cells in front of a door, the agent, the goal or the key. Lava costs instead of killing: the
+agent walks on it as on floor, and only the constraint makes it a hazard.
+
+Each episode draws a constraint of :mod:`jaxgrid.hazard_language`: its type uniformly among
+avoid, budget, sequential, proximity and conjunction, then a sentence uniformly among the
+table rows of that type (a conjunction joins two clauses of uniform types with "and"). The
+layout is then drawn until the goal can be reached without entering any clause's forbidden
+zone (every budget, trigger and order ignored: a sufficient condition for a run with no
+violation), at most :data:`MAX_TRIES` times; the agent never starts inside a zone. The
+monitor (:mod:`jaxgrid.monitor`) lives in the state; ``info`` reports ``violation``,
+``cost``, ``constraint_type`` (index into
+:data:`jaxgrid.hazard_language.CONSTRAINT_TYPES`) and ``template_id`` (the first clause's).
+
+``sentences`` replaces the drawn constraints with a fixed list (each episode draws one of
+them uniformly); every sentence is parsed and checked against what the scenario contains
+when the environment is built.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxgrid import grid as G
+from jaxgrid import hazard_language as HL
+from jaxgrid import monitor as M
+from jaxgrid.constants import (
+    BLUE,
+    CLOSED,
+    DOOR,
+    FLOOR,
+    GOAL,
+    GOAL_CELL,
+    GREEN,
+    KEY,
+    LAVA,
+    LAVA_CELL,
+    LOCKED,
+    WALL_CELL,
+    YELLOW,
+)
+from jaxgrid.dynamics import get_cell, transition
+from jaxgrid.environment import Environment, check_action
+from jaxgrid.oracle import distance_field
+from jaxgrid.scenarios import DOOR_COLOURS, SPLITS, _distinct_colours
+from jaxgrid.types import State, TimeStep
+
+#: Layout draws per episode before the last one is kept whatever it is.
+MAX_TRIES = 64
+#: Chance that a strip is of the ground hazard that a budget or sequential clause names first.
+NAMED_SHARE = 0.5
+#: Colours of the floor tiles: water, grass and yellow floor.
+FLOOR_COLOURS = (BLUE, GREEN, YELLOW)
+#: (kind, colour) of each hazard strip, in drawing order (later strips paint over earlier).
+STRIPS = (
+    (LAVA, 0), (LAVA, 0), (LAVA, 0),
+    (FLOOR, BLUE), (FLOOR, BLUE), (FLOOR, GREEN), (FLOOR, YELLOW), (FLOOR, YELLOW),
+)  # fmt: skip
+_STRIP_LEN = 3
+_COLOUR_NAMES = ("red", "green", "blue", "purple", "yellow", "grey")
+
+
+def scenario_targets() -> tuple[HL.Target, ...]:
+    """Targets the tables use: lava, the three floors, then the five door colours."""
+    floors = tuple(HL.Target("floor", _COLOUR_NAMES[c]) for c in FLOOR_COLOURS)
+    doors = tuple(HL.Target("door", _COLOUR_NAMES[int(c)]) for c in DOOR_COLOURS)
+    return (HL.Target("lava"),) + floors + doors
+
+
+def scenario_triggers() -> tuple[HL.Trigger, ...]:
+    """Triggers the tables use: picking up the key, or entering any target."""
+    return (HL.Trigger("pickup", kind="key"),) + tuple(
+        HL.Trigger("enter", target=t) for t in scenario_targets()
+    )
+
+
+def check_sentence(sentence: str) -> HL.HazardConstraint:
+    """Parse ``sentence`` and check that HazardRooms has what it names.
+
+    Raises ``ValueError`` naming the word for a target or trigger the scenario lacks: a ball
+    or box, a floor colour other than blue, green and yellow, a green door.
+    """
+    c = HL.parse(sentence)
+    known = set(scenario_targets())
+    for clause in c.clauses:
+        things = [clause.target]
+        if clause.trigger is not None:
+            things.append(clause.trigger.target if clause.trigger.action == "enter" else None)
+            if clause.trigger.action == "pickup" and clause.trigger.kind != "key":
+                raise ValueError(
+                    f"{sentence!r}: HazardRooms has no {clause.trigger.kind!r} to pick up "
+                    "(only a key)"
+                )
+        for t in things:
+            if t is not None and t not in known:
+                floors = ", ".join(_COLOUR_NAMES[i] for i in FLOOR_COLOURS)
+                doors = ", ".join(_COLOUR_NAMES[int(i)] for i in DOOR_COLOURS)
+                raise ValueError(
+                    f"{sentence!r}: HazardRooms has no {t.colour!r} {t.kind} "
+                    f"(floors: {floors}; doors: {doors})"
+                )
+    return c
+
+
+def _rows_to_arrays(rows: list[tuple[str, HL.HazardConstraint, int, int]]) -> dict:
+    """Numeric table: ``tokens``, ``length``, ``type_id``, ``template_id``, ``target_id`` and
+    ``spec`` (a :class:`~jaxgrid.monitor.ClauseSpec` of ``(R, NUM_CLAUSES)`` arrays)."""
+    specs = [M.encode(c) for _, c, _, _ in rows]
+    targets = scenario_targets()
+    return {
+        "tokens": np.stack([HL.tokenize(s) for s, *_ in rows]).astype(np.int32),
+        "length": np.array([len(s.split()) for s, *_ in rows], np.int32),
+        "type_id": np.array([c.type_id for _, c, _, _ in rows], np.int32),
+        "template_id": np.array([t for *_, t, _ in rows], np.int32),
+        "target_id": np.array(
+            [
+                targets.index(c.clauses[0].target) if c.clauses[0].target in targets else -1
+                for _, c, _, _ in rows
+            ],
+            np.int32,
+        ),  # fmt: skip
+        "spec": jax.tree.map(lambda *xs: np.stack(xs), *specs),
+    }
+
+
+@functools.cache
+def _default_table(split: str, budgets: tuple, distances: tuple) -> dict:
+    rows = HL.clause_rows(scenario_targets(), scenario_triggers(), budgets, distances, split=split)
+    # A route crosses each door once, so a door budget would never bind: budgets are on ground.
+    rows = [r for r in rows if r.clause.type != "budget" or r.clause.target.kind != "door"]
+    return _rows_to_arrays(
+        [(r.sentence, HL.HazardConstraint((r.clause,), r.sentence), r.template_id, 0)
+         for r in rows]
+    )  # fmt: skip
+
+
+@functools.cache
+def _sentence_table(sentences: tuple[str, ...]) -> dict:
+    rows = []
+    for s in sentences:
+        c = check_sentence(s)
+        rows.append((" ".join(HL.normalize(s)), c, -1, 0))
+    return _rows_to_arrays(rows)
+
+
+@struct.dataclass
+class EpisodeConstraint:
+    """The episode's constraint as the agent reads it (tokens) and metrics group it."""
+
+    tokens: jax.Array  # int32 (MAX_LEN,)
+    type_id: jax.Array  # int32, index into CONSTRAINT_TYPES
+    template_id: jax.Array  # int32, first clause's template (-1 for a given sentence)
+
+
+@struct.dataclass
+class HazardExtras:
+    constraint: EpisodeConstraint
+    monitor: M.Monitor
+    goal_pos: jax.Array  # int32 (2,)
+
+
+def _pick(u: jax.Array, mask: jax.Array) -> jax.Array:
+    """Uniform index among the True entries of a 1-D ``mask`` (which has at least one)."""
+    cum = jnp.cumsum(mask.astype(jnp.int32))
+    r = jnp.minimum(jnp.floor(u * cum[-1]).astype(jnp.int32), cum[-1] - 1)
+    return jnp.argmax(cum > r).astype(jnp.int32)
+
+
+def _join(tok_a, len_a, tok_b, len_b):
+    """Tokens of "<a> and <b>" from two right-padded rows."""
+    pos = jnp.arange(tok_a.shape[-1])
+    j = jnp.clip(pos - len_a - 1, 0, tok_a.shape[-1] - 1)
+    and_id = HL.VOCAB.index("and")
+    tail = jnp.where(pos - len_a - 1 < len_b, tok_b[j], 0)
+    return jnp.where(pos < len_a, tok_a, jnp.where(pos == len_a, and_id, tail))
+
+
+def _slot(spec: M.ClauseSpec, row, slot: int) -> M.ClauseSpec:
+    return jax.tree.map(lambda a: a[row, slot], spec)
+
+
+class HazardRooms(Environment):
+    """Four rooms, doors, a key, costly lava and floor strips, a rich constraint per episode.
+
+    Static settings: ``split`` (table rows drawn from, as the paper's scenarios), ``budgets``
+    (the counts budget clauses use), ``distances`` (those proximity clauses use) and
+    ``sentences`` (a fixed list of constraints instead of the drawn ones).
+    """
+
+    split: str = struct.field(pytree_node=False, default="train")
+    budgets: tuple = struct.field(pytree_node=False, default=(1, 2))
+    distances: tuple = struct.field(pytree_node=False, default=(2, 3))
+    sentences: tuple | None = struct.field(pytree_node=False, default=None)
+
+    language = HL  # the language of ``obs["constraint"]``
+
+    def __post_init__(self):
+        super().__post_init__()
+        name = type(self).__name__
+        if (self.width, self.height) != (13, 13):
+            raise ValueError(f"{name} is laid out on a 13x13 grid, got {self.width}x{self.height}")
+        if self.split not in SPLITS:
+            raise ValueError(f"{name}.split must be one of {SPLITS}, got {self.split!r}")
+        for field, hi in (("budgets", HL.MAX_BUDGET), ("distances", HL.MAX_DISTANCE)):
+            values = getattr(self, field)
+            if (
+                not isinstance(values, tuple)
+                or not values
+                or any(not isinstance(v, int) or not 1 <= v <= hi for v in values)
+            ):
+                raise ValueError(f"{name}.{field} must be a non-empty tuple of ints 1..{hi}")
+        if self.sentences is not None:
+            if isinstance(self.sentences, str) or not self.sentences:
+                raise ValueError(f"{name}.sentences must be a non-empty tuple of sentences")
+            self.constraint_table()  # parses and checks every sentence now
+
+    def constraint_table(self) -> dict:
+        """The numeric table constraints are drawn from (see :func:`_rows_to_arrays`)."""
+        if self.sentences is not None:
+            return _sentence_table(tuple(self.sentences))
+        return _default_table(self.split, tuple(self.budgets), tuple(self.distances))
+
+    # --- layout ---------------------------------------------------------------------------
+    def layout(self, u: jax.Array, named: jax.Array | None = None):
+        """``(grid, agent, direction, goal)`` of one draw from uniforms ``u``.
+
+        ``named``: int32 ``(2,)`` (kind, colour) of the ground hazard the constraint names
+        first, or kind -1; each strip is of that hazard with probability :data:`NAMED_SHARE`.
+        """
+        w, h = self.width, self.height
+        xs, ys = G.coords(w, h)
+        grid = jnp.asarray(G.room(w, h))
+        wall = (xs == w // 2) | (ys == h // 2)
+        grid = jnp.where(wall[..., None], jnp.asarray(WALL_CELL), grid)
+        colours = _distinct_colours(u[0:4], 4)
+        # Doors: top and bottom of the vertical wall, left and right of the horizontal one.
+        m = w // 2
+        doors = [
+            (m, G.randint(u[4], 1, m)),
+            (m, G.randint(u[5], m + 1, h - 1)),
+            (G.randint(u[6], 1, m), m),
+            (G.randint(u[7], m + 1, w - 1), m),
+        ]
+        protect = jnp.zeros((w, h), bool)
+        for (dx, dy), colour in zip(doors, colours, strict=True):
+            grid = G.put(grid, (dx, dy), G.cell(DOOR, colour, CLOSED))
+            near = (jnp.abs(xs - dx) + jnp.abs(ys - dy)) == 1
+            protect = protect | near
+        rooms = [(xs < m) & (ys < m), (xs > m) & (ys < m), (xs < m) & (ys > m), (xs > m) & (ys > m)]
+        rooms = jnp.stack([r & (xs > 0) & (ys > 0) & (xs < w - 1) & (ys < h - 1) for r in rooms])
+        agent_room = G.randint(u[8], 0, 4)
+        agent = G.sample_cell(u[9], rooms[agent_room] & ~protect)
+        goal = G.sample_cell(u[10], rooms[3 - agent_room] & ~protect)
+        key = G.sample_cell(u[11], rooms[agent_room] & ~protect & ~G.at((w, h), agent))
+        protect = protect | G.at((w, h), agent) | G.at((w, h), goal) | G.at((w, h), key)
+        grid = G.put(grid, goal, GOAL_CELL)
+        grid = G.put(grid, key, G.cell(KEY, G.randint(u[12], 0, 6), 0))
+        named = jnp.array([-1, 0], jnp.int32) if named is None else named
+        for i, (kind, colour) in enumerate(STRIPS):
+            v = u[13 + 4 * i : 17 + 4 * i]
+            use_named = (named[0] >= 0) & (u[15 + 4 * len(STRIPS) + i] < NAMED_SHARE)
+            kind = jnp.where(use_named, named[0], kind)
+            colour = jnp.where(use_named, named[1], colour)
+            room = rooms[G.randint(v[0], 0, 4)]
+            across = v[1] < 0.5  # horizontal strip
+            # Top-left cell of the strip, in room coordinates (0..4 each way).
+            a = G.randint(v[2], 0, 5 - _STRIP_LEN + 1)
+            b = G.randint(v[3], 0, 5)
+            rx = jnp.min(jnp.where(room, xs, w))
+            ry = jnp.min(jnp.where(room, ys, h))
+            sx = rx + jnp.where(across, a, b)
+            sy = ry + jnp.where(across, b, a)
+            dx = xs - sx
+            dy = ys - sy
+            strip = jnp.where(
+                across,
+                (dy == 0) & (dx >= 0) & (dx < _STRIP_LEN),
+                (dx == 0) & (dy >= 0) & (dy < _STRIP_LEN),
+            )
+            cell = jnp.where(kind == LAVA, jnp.asarray(LAVA_CELL), G.cell(FLOOR, colour, 0))
+            grid = jnp.where((strip & ~protect)[..., None], cell, grid)
+        direction = G.randint(u[14 + 4 * len(STRIPS)], 0, 4)
+        return grid, agent, direction, goal
+
+    NUM_UNIFORMS = 15 + 5 * len(STRIPS)
+
+    # --- constraint -----------------------------------------------------------------------
+    def _draw_constraint(self, key: jax.Array, table: dict):
+        """``(EpisodeConstraint, ClauseSpec)`` drawn as the module docstring says."""
+        u = jax.random.uniform(key, (6,))
+        spec = table["spec"]
+        if self.sentences is not None:
+            row = _pick(u[0], jnp.ones(table["type_id"].shape, bool))
+            ec = EpisodeConstraint(
+                table["tokens"][row], table["type_id"][row], table["template_id"][row]
+            )
+            return ec, jax.tree.map(lambda a: a[row], spec)
+        type_ids = jnp.asarray(table["type_id"])
+        ctype = G.randint(u[0], 0, len(HL.CONSTRAINT_TYPES))
+        conj = ctype == HL.CONSTRAINT_TYPES.index("conjunction")
+        type_a = jnp.where(conj, G.randint(u[1], 0, len(HL.CLAUSE_TYPES)), ctype)
+        type_b = G.randint(u[2], 0, len(HL.CLAUSE_TYPES))
+        a = _pick(u[3], type_ids == type_a)
+        targets = jnp.asarray(table["target_id"])
+        b = _pick(u[4], (type_ids == type_b) & (targets != targets[a]))
+        tokens = jnp.asarray(table["tokens"])
+        length = jnp.asarray(table["length"])
+        joined = _join(tokens[a], length[a], tokens[b], length[b])
+        second = jax.tree.map(
+            lambda x, unused: jnp.where(conj, x, unused), _slot(spec, b, 0), M.empty_slot()
+        )
+        first = _slot(spec, a, 0)
+        clause_spec = jax.tree.map(lambda x, y: jnp.stack([x, y]), first, second)
+        ec = EpisodeConstraint(
+            tokens=jnp.where(conj, joined, tokens[a]),
+            type_id=ctype,
+            template_id=jnp.asarray(table["template_id"])[a],
+        )
+        return ec, clause_spec
+
+    def generate(self, key: jax.Array) -> State:
+        table = jax.tree.map(jnp.asarray, self.constraint_table())
+        key_c, key_l = jax.random.split(key)
+        ec, spec = self._draw_constraint(key_c, table)
+        first = jax.tree.map(lambda a: a[0], spec)
+        ground = (first.target_kind == LAVA) | (first.target_kind == FLOOR)
+        # Budgets and sequences bind only when their hazard lies across the route; avoid and
+        # proximity clauses bind often enough with the plain layout, and are harder to satisfy
+        # with more of their hazard.
+        boost = ground & ((first.budget > 0) | (first.gate != M.ALWAYS))
+        named = jnp.stack([jnp.where(boost, first.target_kind, -1), first.target_colour])
+
+        def draw(i):
+            u = jax.random.uniform(jax.random.fold_in(key_l, i), (self.NUM_UNIFORMS,))
+            grid, agent, direction, goal = self.layout(u, named)
+            monitor = M.start(spec, grid)
+            ok = solvable(grid, agent, jnp.any(monitor.zone, 0))
+            return grid, agent, direction, goal, monitor, ok
+
+        def cond(carry):
+            i, *_, ok = carry
+            return ~ok & (i < MAX_TRIES)
+
+        def body(carry):
+            i = carry[0]
+            return (i + 1, *draw(i))
+
+        _, grid, agent, direction, goal, monitor, _ = jax.lax.while_loop(
+            cond, body, (jnp.int32(1), *draw(0))
+        )
+        extras = HazardExtras(constraint=ec, monitor=monitor, goal_pos=goal)
+        return self.init_state(grid, agent, direction, key, extras)
+
+    # --- observation, step ----------------------------------------------------------------
+    def observe(self, state: State) -> dict:
+        obs = super().observe(state)
+        obs["constraint"] = state.extras.constraint.tokens
+        return obs
+
+    def info(self, state: State) -> dict:
+        false = jnp.zeros((), bool)
+        return self._info(state, false, jnp.zeros((), jnp.float32))
+
+    def _info(self, state, violation, cost) -> dict:
+        c = state.extras.constraint
+        return {
+            "violation": violation,
+            "cost": cost,
+            "constraint_type": c.type_id,
+            "template_id": c.template_id,
+        }
+
+    def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
+        """MiniGrid step with harmless lava, and the monitor's cost and violation."""
+        check_action(action)
+        new, reward, terminated, truncated = transition(state, action, self.max_steps)
+        terminated = terminated & (get_cell(new.grid, new.agent_pos)[0] == GOAL)  # lava: no end
+        monitor, cost, violation = M.update(
+            state.extras.monitor, state.agent_pos, new.agent_pos, state.carrying, new.carrying
+        )
+        new = new.replace(extras=new.extras.replace(monitor=monitor))
+        info = self._info(new, violation, cost)
+        return new, self.make_timestep(new, reward, terminated, truncated, info)
+
+
+def solvable(grid: jax.Array, agent: jax.Array, forbidden: jax.Array) -> jax.Array:
+    """Whether the goal can be reached from ``agent`` without entering ``forbidden`` cells.
+
+    Doors that are closed count as passable (they can be opened), locked ones do not; lava and
+    floor are walkable. The agent's own cell and the goal's must be allowed.
+    """
+    kind = grid[..., 0]
+    walkable = (kind == 1) | (kind == FLOOR) | (kind == LAVA) | (kind == GOAL)
+    walkable = walkable | ((kind == DOOR) & (grid[..., 2] != LOCKED))
+    passable = walkable & ~forbidden
+    dist = distance_field((kind == GOAL) & ~forbidden, passable)
+    inf = grid.shape[0] * grid.shape[1] + 1
+    return (dist[agent[0], agent[1]] < inf) & ~forbidden[agent[0], agent[1]]

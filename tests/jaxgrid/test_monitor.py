@@ -1,0 +1,121 @@
+"""The jitted monitor against a plain-Python reference, step by step, on random episodes.
+
+HazardRooms episodes (every constraint type, drawn by the scenario) are played with biased
+random actions; every step's ``cost`` and ``violation`` must equal those of
+``helpers.monitor_reference``, which judges the sentence's parsed meaning with Python loops.
+The default run checks about 10,000 steps per constraint type; ``-m slow`` 100,000.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers.monitor_reference import ReferenceMonitor
+
+from jaxgrid import hazard_language as HL
+from jaxgrid import monitor as M
+from jaxgrid.hazard import HazardRooms
+
+# left, right, forward, pickup, drop, toggle: forward-heavy so agents travel and pass doors.
+ACTION_PROBS = np.array([0.12, 0.12, 0.56, 0.06, 0.04, 0.10])
+
+
+@functools.partial(jax.jit, static_argnames=("env", "n"))
+def _play(env, key, n):
+    k_reset, k_act = jax.random.split(key)
+    states, _ = jax.vmap(env.reset)(jax.random.split(k_reset, n))
+    first = states
+
+    def body(carry, k):
+        states, done = carry
+        actions = jax.random.choice(k, 6, (n,), p=jnp.asarray(ACTION_PROBS))
+        new, ts = jax.vmap(env.step)(states, actions)
+        out = {
+            "pos_before": states.agent_pos,
+            "pos_after": new.agent_pos,
+            "carrying_before": states.carrying,
+            "carrying_after": new.carrying,
+            "cost": ts.info["cost"],
+            "violation": ts.info["violation"],
+            "active": ~done,
+        }
+        return (new, done | ts.terminated | ts.truncated), out
+
+    keys = jax.random.split(k_act, env.max_steps)
+    _, steps = jax.lax.scan(body, (states, jnp.zeros((n,), bool)), keys)
+    return first, steps
+
+
+def _compare(env, seed, n):
+    first, steps = _play(env, jax.random.key(seed), n)
+    first, steps = jax.tree.map(np.asarray, (first.replace(key=None), steps))
+    counted = np.zeros(len(HL.CONSTRAINT_TYPES), int)
+    for e in range(n):
+        sentence = HL.detokenize(first.extras.constraint.tokens[e])
+        ref = ReferenceMonitor(HL.parse(sentence), first.grid[e])
+        for t in range(env.max_steps):
+            if not steps["active"][t, e]:
+                break
+            cost, violation = ref.step(
+                steps["pos_before"][t, e], steps["pos_after"][t, e],
+                steps["carrying_before"][t, e], steps["carrying_after"][t, e],
+            )  # fmt: skip
+            got = (float(steps["cost"][t, e]), bool(steps["violation"][t, e]))
+            assert got == (cost, violation), (sentence, e, t)
+            counted[first.extras.constraint.type_id[e]] += 1
+    return counted, steps
+
+
+@pytest.mark.parametrize("steps_per_type", [10_000, pytest.param(100_000, marks=pytest.mark.slow)])
+def test_monitor_matches_the_reference(steps_per_type):
+    env = HazardRooms(width=13, height=13, max_steps=150)
+    n = int(steps_per_type * len(HL.CONSTRAINT_TYPES) / env.max_steps * 1.3)
+    counted, steps = _compare(env, 0, n)
+    assert counted.min() >= steps_per_type, counted
+    # The comparison saw every outcome: costs, violations, and costs without violations.
+    active = steps["active"]
+    assert steps["violation"][active].sum() > 100
+    assert (steps["cost"][active] > 0).sum() > steps["violation"][active].sum()
+
+
+def test_budget_counts_every_entry_and_flags_those_beyond_it():
+    # A hand-made corridor: lava at x = 2, 4, 6; the agent walks right along y = 1.
+    grid = np.zeros((9, 3, 3), np.uint8)
+    grid[..., 0] = 1
+    for x in (2, 4, 6):
+        grid[x, 1] = (9, 0, 0)
+    spec = M.encode(HL.parse("do not step on lava more than twice"))
+    mon = M.start(spec, jnp.asarray(grid))
+    results = []
+    for x in range(8):
+        mon, cost, violation = M.update(
+            mon, jnp.array([x, 1]), jnp.array([x + 1, 1]), jnp.array([1, 0, 0]),
+            jnp.array([1, 0, 0]),
+        )  # fmt: skip
+        results.append((float(cost), bool(violation)))
+    lava_steps = [(1.0, False), (1.0, False), (1.0, True)]
+    assert [r for r in results if r[0]] == lava_steps
+    assert int(mon.count[0]) == 3
+
+
+def test_turning_in_a_zone_is_no_new_event():
+    grid = np.zeros((5, 5, 3), np.uint8)
+    grid[..., 0] = 1
+    grid[2, 2] = (9, 0, 0)
+    mon = M.start(M.encode(HL.parse("never stand next to lava")), jnp.asarray(grid))
+    stay = jnp.array([2, 1])
+    empty = jnp.array([1, 0, 0])
+    mon, cost, violation = M.update(mon, jnp.array([2, 0]), stay, empty, empty)
+    assert (float(cost), bool(violation)) == (1.0, True)
+    mon, cost, violation = M.update(mon, stay, stay, empty, empty)  # a turn
+    assert (float(cost), bool(violation)) == (0.0, False)
+
+
+def test_encode_rejects_three_clauses():
+    c = HL.parse("avoid lava").clauses[0]
+    with pytest.raises(ValueError, match="1 to 2 clauses"):
+        M.encode((c, c, c))
