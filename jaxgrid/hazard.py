@@ -13,7 +13,9 @@ avoid, budget, sequential, proximity and conjunction, then a sentence uniformly 
 table rows of that type (a conjunction joins two clauses of uniform types with "and"). The
 layout is then drawn until the goal can be reached without entering any clause's forbidden
 zone (every budget, trigger and order ignored: a sufficient condition for a run with no
-violation), at most :data:`MAX_TRIES` times; the agent never starts inside a zone. The
+violation) and every trigger cell the constraint names exists, at most :data:`MAX_TRIES`
+times; the agent never starts inside a zone. So that budgets and sequences bind, most strips
+(:data:`NAMED_SHARE`) are of the ground hazard a budget or sequential clause names first. The
 monitor (:mod:`jaxgrid.monitor`) lives in the state; ``info`` reports ``violation``,
 ``cost``, ``constraint_type`` (index into
 :data:`jaxgrid.hazard_language.CONSTRAINT_TYPES`) and ``template_id`` (the first clause's).
@@ -59,13 +61,13 @@ from jaxgrid.types import State, TimeStep
 #: Layout draws per episode before the last one is kept whatever it is.
 MAX_TRIES = 64
 #: Chance that a strip is of the ground hazard that a budget or sequential clause names first.
-NAMED_SHARE = 0.5
+NAMED_SHARE = 0.75
 #: Colours of the floor tiles: water, grass and yellow floor.
 FLOOR_COLOURS = (BLUE, GREEN, YELLOW)
 #: (kind, colour) of each hazard strip, in drawing order (later strips paint over earlier).
 STRIPS = (
-    (LAVA, 0), (LAVA, 0), (LAVA, 0),
-    (FLOOR, BLUE), (FLOOR, BLUE), (FLOOR, GREEN), (FLOOR, YELLOW), (FLOOR, YELLOW),
+    (LAVA, 0), (LAVA, 0), (LAVA, 0), (FLOOR, BLUE), (FLOOR, BLUE),
+    (FLOOR, BLUE), (FLOOR, GREEN), (FLOOR, GREEN), (FLOOR, YELLOW), (FLOOR, YELLOW),
 )  # fmt: skip
 _STRIP_LEN = 3
 _COLOUR_NAMES = ("red", "green", "blue", "purple", "yellow", "grey")
@@ -346,6 +348,10 @@ class HazardRooms(Environment):
             grid, agent, direction, goal = self.layout(u, named)
             monitor = M.start(spec, grid)
             ok = solvable(grid, agent, jnp.any(monitor.zone, 0))
+            # A trigger to enter must exist ("after you pass the purple door" with no purple
+            # door would never arm), as must the key for a pickup trigger (it always does).
+            enters = spec.active & (spec.trigger_kind >= 0) & ~spec.trigger_pickup
+            ok = ok & jnp.all(~enters | jnp.any(monitor.trigger_cells, axis=(1, 2)))
             return grid, agent, direction, goal, monitor, ok
 
         def cond(carry):
