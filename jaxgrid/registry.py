@@ -6,7 +6,7 @@ import dataclasses
 from collections.abc import Callable
 
 from jaxgrid.environment import Environment
-from jaxgrid.levels import DoorKey, Empty, LavaGap, keys, navigation
+from jaxgrid.levels import DoorKey, Empty, LavaGap, keys, navigation, rooms
 from jaxgrid.scenarios import ThreeRoomsKey, TwoRooms
 
 
@@ -48,6 +48,7 @@ _BUILTIN: dict[str, Callable[[], Environment]] = {
     **{f"MiniGrid-LavaGapS{n}-v0": _lavagap(n) for n in (5, 6, 7)},
     **navigation.IDS,
     **keys.IDS,
+    **rooms.IDS,
     **_scenarios(),
 }
 _USER: dict[str, Callable[[], Environment]] = {}

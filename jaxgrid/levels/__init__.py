@@ -4,6 +4,7 @@ from jaxgrid.levels.classic import DoorKey, Empty, LavaGap
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.levels.keys import BlockedUnlockPickup, KeyCorridor, Unlock, UnlockPickup
 from jaxgrid.levels.navigation import Crossing, DistShift, FourRooms
+from jaxgrid.levels.rooms import LockedRoom, MultiRoom
 
 __all__ = [
     "BlockedUnlockPickup",
@@ -15,6 +16,8 @@ __all__ = [
     "FourRooms",
     "KeyCorridor",
     "LavaGap",
+    "LockedRoom",
+    "MultiRoom",
     "Unlock",
     "UnlockPickup",
 ]

@@ -1,0 +1,408 @@
+"""MiniGrid's MultiRoom and LockedRoom levels, generated natively.
+
+Each ``generate`` mirrors the ``_gen_grid`` of the MiniGrid class it names; the comments quote
+the MiniGrid call each line reproduces. A rejection-sampled ``place_obj``/``place_agent`` is the
+uniform distribution over the cells it accepts and is drawn directly, a shuffle of colours is
+the order of independent uniforms, and a "redraw until it differs" is a uniform choice among
+the other values.
+
+MultiRoom's chain of rooms is the one random process that is not redrawn constructively: its
+acceptance depends on every room of the chain, so :class:`MultiRoom` runs MiniGrid's own
+proposal process (eight tries per room, an attempt given up when a room finds no place) and
+keeps the first complete attempt, in a bounded ``lax.while_loop``. Attempts are independent
+and the accepted one is the first that completes, so its distribution is the proposal
+process's conditioned on completing, which is MiniGrid's, whatever order the random numbers
+are drawn in.
+
+MultiRoom and LockedRoom step with ``MiniGridEnv.step``'s rules. :data:`IDS` maps MiniGrid's
+ids, with MiniGrid's per-id defaults, to factories.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxgrid import grid as G
+from jaxgrid.constants import (
+    CLOSED,
+    DOOR,
+    EMPTY_CELL,
+    GOAL_CELL,
+    KEY,
+    LOCKED,
+    WALL_CELL,
+)
+from jaxgrid.environment import Environment
+from jaxgrid.types import State
+
+NUM_COLOURS = 6  # MiniGrid's COLOR_NAMES
+
+
+def _one_hot_select(index, table) -> jax.Array:
+    """``table[index]`` along the first axis as a select-sum: no gather under ``vmap``."""
+    hit = jnp.arange(table.shape[0]) == index
+    return jnp.sum(jnp.where(hit.reshape((-1,) + (1,) * (table.ndim - 1)), table, 0), axis=0)
+
+
+def _check_int(level, field: str, low: int, why: str) -> None:
+    value = getattr(level, field)
+    if not isinstance(value, int) or isinstance(value, bool) or value < low:
+        raise ValueError(
+            f"{type(level).__name__}.{field} must be an int >= {low} ({why}), got {value!r}"
+        )
+
+
+# ---------------------------------------------------------------------------- MultiRoom
+
+MIN_ROOM_SIZE = 4  # _placeRoom(..., minSz=4, ...)
+TRIES = 8  # _placeRoom: for i in range(0, 8): ... one proposal for the next room per try
+ATTEMPTS_PER_ROUND = 4  # chain attempts drawn side by side in one loop iteration
+MAX_ROUNDS = 256  # at most 1024 attempts per reset
+
+
+def _first_room_pairs(tops: int, sizes: range, limit: int) -> np.ndarray:
+    """``(top, size)`` pairs of the first room along one axis that ``_placeRoom`` keeps.
+
+    ``top`` is ``_rand_int(0, tops)``, ``size`` is ``_rand_int(minSz, maxSz + 1)``; the room is
+    kept when ``top + size <= limit``. Returns int32 ``(K, 2)``.
+    """
+    pairs = [(t, s) for t in range(tops) for s in sizes if t + s <= limit]
+    return np.array(pairs, np.int32).reshape(-1, 2)
+
+
+class MultiRoom(Environment):
+    """``MultiRoomEnv``: a chain of rooms joined by closed doors; the goal is in the last room.
+
+    ``_gen_grid`` draws the number of rooms in ``min_num_rooms .. max_num_rooms``, then builds
+    chains of rooms (sides ``4 .. max_room_size``, walls included) until one has that many:
+    the first room's top-left corner is uniform in ``[0, width - 2)`` along both axes (MiniGrid
+    draws its ``y`` from the width too), each next room leaves its predecessor through a door on
+    one of the three walls other than the one it was entered by, and is kept if it lies inside
+    the grid (its bottom wall above the last row) and apart from every earlier room but its
+    predecessor; eight proposals are tried per room and a chain ends at the first room with
+    none kept. The doors are closed, each of a uniform colour other than the previous door's;
+    the agent is placed uniformly in the first room with a uniform direction, the goal
+    uniformly in the last room. There are no outer walls.
+
+    The first room is drawn uniformly among the corners and sizes that fit, which conditions
+    the attempt on what ``_placeRoom`` checks first and leaves the accepted distribution
+    unchanged. Attempts run :data:`ATTEMPTS_PER_ROUND` at a time, at most :data:`MAX_ROUNDS`
+    rounds (1024 attempts). An attempt completes with probability 0.34 at
+    ``MiniGrid-MultiRoom-N6-v0`` (0.61 at ``N4-S5-v0``, 0.81 at ``N4-S5-v1``, 0.998 at
+    ``N2-S4-v0``; measured over 200000 attempts), so a reset reaches the cap with probability
+    ``0.66**1024 < 1e-180``. A grid too small for the rooms asked, where MiniGrid would retry
+    forever, gets the longest chain found in the 1024 attempts (the first of that length, as
+    MiniGrid's ``roomList``) and fewer rooms than asked.
+    """
+
+    min_num_rooms: int = struct.field(pytree_node=False, default=6)
+    max_num_rooms: int = struct.field(pytree_node=False, default=6)
+    max_room_size: int = struct.field(pytree_node=False, default=10)
+
+    def __post_init__(self):
+        _check_int(self, "min_num_rooms", 1, "a chain has a first room")
+        _check_int(self, "max_num_rooms", self.min_num_rooms, "at least min_num_rooms")
+        _check_int(self, "max_room_size", MIN_ROOM_SIZE, "rooms are 4 cells wide at least")
+        super().__post_init__()
+
+    def min_size(self):
+        # The first room's corner (0, 0) with sides 4: its right wall in the last column, its
+        # bottom wall above the last row (topY + sizeY < height).
+        return MIN_ROOM_SIZE, MIN_ROOM_SIZE + 1, "a first room of 4 x 4 cells above the last row"
+
+    def _propose(self, u, parent, older, tops, sizes):
+        """One room's :data:`TRIES` proposals; returns ``(kept, entry wall, door, top, size)``.
+
+        ``u`` is ``(TRIES, 5)`` uniforms; ``parent`` is ``(top, size, entry wall)`` of the
+        room the door leaves; ``older`` (bool ``(M,)``) marks the rooms the new one must lie
+        apart from (``roomList[:-1]``) among the first ``M`` of ``tops``/``sizes`` (int32
+        ``(M, 2)``).
+        """
+        (px, py), (psx, psy), parent_entry = parent
+        # wallSet = {0, 1, 2, 3} - {entryDoorWall}; exitDoorWall = _rand_elem(sorted(wallSet))
+        index = G.randint(u[:, 0], 0, 3)
+        exit_wall = index + (index >= parent_entry)
+        # exit on the right/left wall: topY + _rand_int(1, sizeY - 1); south/north: topX + ...
+        door_x = jnp.where(
+            exit_wall == 0,
+            px + psx - 1,
+            jnp.where(exit_wall == 2, px, px + G.randint(u[:, 1], 1, psx - 1)),
+        )
+        door_y = jnp.where(
+            exit_wall == 1,
+            py + psy - 1,
+            jnp.where(exit_wall == 3, py, py + G.randint(u[:, 1], 1, psy - 1)),
+        )
+        entry = (exit_wall + 2) % 4  # nextEntryWall = (exitDoorWall + 2) % 4
+        # sizeX = _rand_int(minSz, maxSz + 1); sizeY = _rand_int(minSz, maxSz + 1)
+        sx = G.randint(u[:, 2], MIN_ROOM_SIZE, self.max_room_size + 1)
+        sy = G.randint(u[:, 3], MIN_ROOM_SIZE, self.max_room_size + 1)
+        # entry on the right: topX = x - sizeX + 1; on the left: topX = x; south or top:
+        # topX = _rand_int(x - sizeX + 2, x); likewise topY
+        tx = jnp.where(
+            entry == 0,
+            door_x - sx + 1,
+            jnp.where(entry == 2, door_x, G.randint(u[:, 4], door_x - sx + 2, door_x)),
+        )
+        ty = jnp.where(
+            entry == 1,
+            door_y - sy + 1,
+            jnp.where(entry == 3, door_y, G.randint(u[:, 4], door_y - sy + 2, door_y)),
+        )
+        # if topX < 0 or topY < 0: return False
+        # if topX + sizeX > self.width or topY + sizeY >= self.height: return False
+        inside = (tx >= 0) & (ty >= 0) & (tx + sx <= self.width) & (ty + sy < self.height)
+        # for room in roomList[:-1]: nonOverlap = (topX + sizeX < room.top[0] or ...)
+        rx, ry = tops[None, :, 0], tops[None, :, 1]
+        rsx, rsy = sizes[None, :, 0], sizes[None, :, 1]
+        apart = (
+            (tx[:, None] + sx[:, None] < rx)
+            | (rx + rsx <= tx[:, None])
+            | (ty[:, None] + sy[:, None] < ry)
+            | (ry + rsy <= ty[:, None])
+        )
+        kept = inside & jnp.all(apart | ~older[None, :], axis=1)
+        # the first try kept wins: "if success: break"
+        first = jnp.argmax(kept)
+        pick = lambda a: _one_hot_select(first, a)
+        door = jnp.stack([pick(door_x), pick(door_y)])
+        top = jnp.stack([pick(tx), pick(ty)])
+        size = jnp.stack([pick(sx), pick(sy)])
+        return jnp.any(kept), pick(entry), door, top, size
+
+    def _attempt(self, u, num_rooms):
+        """One chain attempt (a call of ``_placeRoom`` from ``_gen_grid``) from uniforms ``u``.
+
+        Returns ``(tops, sizes, doors, count)``: int32 ``(N, 2)`` each (room ``k``'s entry door
+        in ``doors[k]``, unused for the first room) and the number of rooms placed.
+        """
+        n = self.max_num_rooms
+        # entryDoorPos = (_rand_int(0, width - 2), _rand_int(0, width - 2)), then the sizes;
+        # kept if topX + sizeX <= width and topY + sizeY < height: drawn among those kept.
+        sizes = range(MIN_ROOM_SIZE, self.max_room_size + 1)
+        first = []
+        for axis, limit in ((0, self.width), (1, self.height - 1)):
+            pairs = _first_room_pairs(self.width - 2, sizes, limit)
+            first.append(_one_hot_select(G.randint(u[axis], 0, len(pairs)), jnp.asarray(pairs)))
+        top0 = jnp.stack([first[0][0], first[1][0]])
+        size0 = jnp.stack([first[0][1], first[1][1]])
+        row0 = jnp.arange(n) == 0
+        zeros = jnp.zeros((n, 2), jnp.int32)
+        tops = jnp.where(row0[:, None], top0, zeros)
+        sizes_ = jnp.where(row0[:, None], size0, zeros)
+
+        def next_room(carry, xs):
+            tops, sizes, doors, parent, count, alive = carry
+            k, u_k = xs
+            # roomList[:-1]: rooms 0 .. k - 2, every room placed but the parent (so never
+            # one of the last two of the N rows)
+            older = jnp.arange(max(n - 2, 0)) < k - 1
+            kept, entry, door, top, size = self._propose(
+                u_k, parent, older, tops[: max(n - 2, 0)], sizes[: max(n - 2, 0)]
+            )
+            # "if numLeft == 1: return True"; a room with no proposal kept ends the chain
+            placed = alive & kept & (k < num_rooms)
+            row = ((jnp.arange(n) == k) & placed)[:, None]
+            tops = jnp.where(row, top, tops)
+            sizes = jnp.where(row, size, sizes)
+            doors = jnp.where(row, door, doors)
+            parent = jax.tree.map(
+                lambda new, old: jnp.where(placed, new, old), (top, size, entry), parent
+            )
+            return (tops, sizes, doors, parent, count + placed, placed), None
+
+        chain_u = u[2:].reshape(n - 1, TRIES, 5)
+        parent = (top0, size0, jnp.int32(2))  # the first room's entryDoorWall=2
+        carry = (tops, sizes_, zeros, parent, jnp.int32(1), jnp.bool_(True))
+        (tops, sizes_, doors, _, count, _), _ = jax.lax.scan(
+            next_room, carry, (jnp.arange(1, n), chain_u)
+        )
+        return tops, sizes_, doors, count
+
+    def _rooms(self, key, num_rooms):
+        """MiniGrid's ``roomList``: ``while len(roomList) < numRooms``, attempts in rounds of
+        :data:`ATTEMPTS_PER_ROUND`; the first complete attempt, or after :data:`MAX_ROUNDS`
+        the first of the most rooms."""
+        n = self.max_num_rooms
+        width = 2 + (n - 1) * TRIES * 5
+
+        def round_(carry):
+            i, best = carry
+            u = jax.random.uniform(jax.random.fold_in(key, i), (ATTEMPTS_PER_ROUND, width))
+            tops, sizes, doors, count = jax.vmap(self._attempt, in_axes=(0, None))(u, num_rooms)
+            j = jnp.argmax(count)  # the first attempt with the most rooms
+            found = tuple(_one_hot_select(j, a) for a in (tops, sizes, doors, count))
+            longer = found[3] > best[3]  # if len(curRoomList) > len(roomList): replace it
+            best = jax.tree.map(lambda new, old: jnp.where(longer, new, old), found, best)
+            return i + 1, best
+
+        def more(carry):
+            i, best = carry
+            return (i < MAX_ROUNDS) & (best[3] < num_rooms)
+
+        zeros = jnp.zeros((n, 2), jnp.int32)
+        _, best = jax.lax.while_loop(
+            more, round_, (jnp.int32(0), (zeros, zeros, zeros, jnp.int32(0)))
+        )
+        return best
+
+    def generate(self, key: jax.Array) -> State:
+        n, w, h = self.max_num_rooms, self.width, self.height
+        rooms_key, key_u = jax.random.split(key)
+        u = jax.random.uniform(key_u, (4 + n,))
+        # numRooms = _rand_int(minNumRooms, maxNumRooms + 1)
+        num_rooms = G.randint(u[0], self.min_num_rooms, self.max_num_rooms + 1)
+        tops, sizes, doors, count = self._rooms(rooms_key, num_rooms)
+        placed = jnp.arange(n) < count
+        # for each room: the top, bottom, left and right walls of its rectangle
+        xs, ys = G.coords(w, h)
+        x0, y0 = tops[:, 0, None, None], tops[:, 1, None, None]
+        x1 = x0 + sizes[:, 0, None, None] - 1
+        y1 = y0 + sizes[:, 1, None, None] - 1
+        in_rect = (xs >= x0) & (xs <= x1) & (ys >= y0) & (ys <= y1)
+        border = in_rect & ((xs == x0) | (xs == x1) | (ys == y0) | (ys == y1))
+        walls = jnp.any(border & placed[:, None, None], axis=0)
+        grid = jnp.where(walls[..., None], jnp.asarray(WALL_CELL), jnp.asarray(EMPTY_CELL))
+        # doorColor = _rand_elem(sorted(set(COLOR_NAMES) - {prevDoorColor})): the previous
+        # colour plus 1 .. 5 (mod 6) is uniform among the other five
+        steps = jnp.concatenate(
+            [G.randint(u[4:5], 0, NUM_COLOURS), 1 + G.randint(u[5:], 0, NUM_COLOURS - 1)]
+        )
+        colours = jnp.cumsum(steps[: n - 1]) % NUM_COLOURS  # colours[k - 1]: room k's door
+        # grid.set(*room.entryDoorPos, Door(doorColor)) for rooms 1 .. count - 1
+        here = (xs == doors[1:, 0, None, None]) & (ys == doors[1:, 1, None, None])
+        here = here & placed[1:, None, None]
+        colour = jnp.sum(jnp.where(here, colours[:, None, None], 0), axis=0)
+        door = jnp.stack([jnp.full_like(colour, DOOR), colour, jnp.full_like(colour, CLOSED)], -1)
+        grid = jnp.where(jnp.any(here, axis=0)[..., None], door.astype(jnp.uint8), grid)
+        # place_agent(roomList[0].top, roomList[0].size): an empty cell of the first room
+        agent = G.sample_cell(u[1], G.is_empty(grid) & in_rect[0])
+        direction = G.randint(u[2], 0, 4)
+        # place_obj(Goal(), roomList[-1].top, roomList[-1].size): not the agent's cell either
+        last = jnp.any(in_rect & (jnp.arange(n) == count - 1)[:, None, None], axis=0)
+        goal = G.sample_cell(u[3], G.is_empty(grid) & last & ~G.at((w, h), agent))
+        grid = G.put(grid, goal, GOAL_CELL)
+        return self.init_state(grid, agent, direction, key)
+
+
+# --------------------------------------------------------------------------- LockedRoom
+
+
+class LockedRoom(Environment):
+    """``LockedRoomEnv``: six rooms off a central hallway, one locked with the goal inside;
+    the key is in another room.
+
+    The hallway lies between the walls at columns ``width // 2 - 2`` and ``width // 2 + 2``;
+    rows ``0``, ``height // 3`` and ``2 * (height // 3)`` split each side into three rooms,
+    entered by a door three cells below the room's top wall. The locked room is uniform among
+    the six, the goal uniform in it; the six doors take a uniform permutation of the six
+    colours; the key (of the locked door's colour) lies uniformly in a uniform other room; the
+    agent stands uniformly in the hallway with a uniform direction. Goal and key are drawn from
+    ``LockedRoom.rand_pos``'s rectangle (rooms of ``height // 3 + 1`` rows). MiniGrid builds
+    only square sizes; here the width must be odd and the height not a multiple of 3 (other
+    sizes put MiniGrid's goal or key on a wall), at least 9 x 13 (a door below a room's top
+    wall, interior cells on both sides).
+    """
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.width % 2 == 0:
+            raise ValueError(
+                f"LockedRoom.width must be odd (the right rooms are as wide as the left ones), "
+                f"got {self.width}"
+            )
+        if self.height % 3 == 0:
+            raise ValueError(
+                f"LockedRoom.height must not be a multiple of 3 (the bottom rooms' "
+                f"rand_pos rectangle would reach the outer wall), got {self.height}"
+            )
+
+    def min_size(self):
+        return 9, 13, "three rooms of one interior column on each side, doors 3 below the top"
+
+    def rooms(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(tops, sizes, doors)``, int32 ``(6, 2)`` each, in MiniGrid's ``self.rooms`` order
+        (left then right, top to bottom)."""
+        left, right = self.width // 2 - 2, self.width // 2 + 2  # lWallIdx, rWallIdx
+        tops, doors = [], []
+        for n in range(3):  # j = n * (height // 3)
+            j = n * (self.height // 3)
+            tops += [(0, j), (right, j)]
+            doors += [(left, j + 3), (right, j + 3)]
+        sizes = [(left + 1, self.height // 3 + 1)] * 6  # roomW, roomH
+        return tuple(np.array(a, np.int32) for a in (tops, sizes, doors))
+
+    def layout(self) -> np.ndarray:
+        """The walls, uint8 ``(W, H, 3)``: outer, hallway and room-splitting walls."""
+        w, h = self.width, self.height
+        grid = G.room(w, h)
+        left, right = w // 2 - 2, w // 2 + 2
+        grid[left, :] = grid[right, :] = WALL_CELL  # hallway walls
+        for n in range(3):  # room splitting walls
+            grid[:left, n * (h // 3)] = WALL_CELL
+            grid[right:, n * (h // 3)] = WALL_CELL
+        return grid
+
+    def generate(self, key: jax.Array) -> State:
+        w, h = self.width, self.height
+        tops, sizes, doors = (jnp.asarray(a) for a in self.rooms())
+        u = jax.random.uniform(key, (14,))
+        grid = jnp.asarray(self.layout())
+
+        def rand_pos(
+            room, ux, uy
+        ):  # LockedRoom.rand_pos: _rand_pos(topX + 1, topX + sizeX - 1, ..)
+            (x, y), (sx, sy) = _one_hot_select(room, tops), _one_hot_select(room, sizes)
+            return jnp.stack([G.randint(ux, x + 1, x + sx - 1), G.randint(uy, y + 1, y + sy - 1)])
+
+        locked = G.randint(u[0], 0, 6)  # lockedRoom = _rand_elem(self.rooms)
+        grid = G.put(grid, rand_pos(locked, u[1], u[2]), GOAL_CELL)
+        # colors = set(COLOR_NAMES); for room in self.rooms: color = _rand_elem(sorted(colors));
+        # colors.remove(color): a uniform permutation, the order of six uniforms
+        colours = jnp.argsort(u[3:9]).astype(jnp.int32)
+        xs, ys = G.coords(w, h)
+        here = (xs == doors[:, 0, None, None]) & (ys == doors[:, 1, None, None])
+        state = jnp.where(jnp.arange(6) == locked, LOCKED, CLOSED)
+        per_door = jnp.stack([jnp.full(6, DOOR), colours, state], -1)  # Door(color, is_locked=..)
+        door_cells = jnp.sum(jnp.where(here[..., None], per_door[:, None, None], 0), axis=0)
+        grid = jnp.where(jnp.any(here, axis=0)[..., None], door_cells.astype(jnp.uint8), grid)
+        # while True: keyRoom = _rand_elem(self.rooms); if keyRoom != lockedRoom: break
+        other = G.randint(u[9], 0, 5)
+        key_room = other + (other >= locked)
+        key_colour = _one_hot_select(locked, colours)  # Key(lockedRoom.color)
+        grid = G.put(grid, rand_pos(key_room, u[10], u[11]), G.cell(KEY, key_colour))
+        # place_agent(top=(lWallIdx, 0), size=(rWallIdx - lWallIdx, height))
+        left, right = w // 2 - 2, w // 2 + 2
+        hallway = (xs >= left) & (xs < right)
+        agent = G.sample_cell(u[12], G.is_empty(grid) & hallway)
+        return self.init_state(grid, agent, G.randint(u[13], 0, 4), key)
+
+
+# ----------------------------------------------------------------------------------- ids
+
+
+def _multi_room(num_rooms: int, max_room_size: int = 10) -> Callable[[], Environment]:
+    # MultiRoomEnv(minNumRooms=n, maxNumRooms=n, maxRoomSize): 25 x 25, max_steps 20 * n.
+    return lambda: MultiRoom(
+        width=25,
+        height=25,
+        max_steps=20 * num_rooms,
+        min_num_rooms=num_rooms,
+        max_num_rooms=num_rooms,
+        max_room_size=max_room_size,
+    )
+
+
+IDS: dict[str, Callable[[], Environment]] = {
+    "MiniGrid-MultiRoom-N2-S4-v0": _multi_room(2, 4),
+    "MiniGrid-MultiRoom-N4-S5-v0": _multi_room(6, 5),  # MiniGrid's legacy id: six rooms
+    "MiniGrid-MultiRoom-N4-S5-v1": _multi_room(4, 5),
+    "MiniGrid-MultiRoom-N6-v0": _multi_room(6),
+    # LockedRoomEnv(size=19): max_steps 10 * size.
+    "MiniGrid-LockedRoom-v0": lambda: LockedRoom(width=19, height=19, max_steps=190),
+}
