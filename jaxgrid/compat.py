@@ -8,7 +8,7 @@ import numpy as np
 
 from jaxgrid.constants import COLOR_TO_IDX, EMPTY_CELL, OBJECT_TO_IDX
 from jaxgrid.environment import Environment
-from jaxgrid.levels import keys
+from jaxgrid.levels import keys, rooms
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.types import State, TimeStep
 
@@ -46,12 +46,15 @@ def from_minigrid(
     of the same family and configuration (:mod:`jaxgrid.levels.keys`): ``env.step`` applies the
     level's own success rule to the task object (``mg_env.door`` or ``mg_env.obj``, kept in
     ``state.extras``), and ``env.reset`` draws fresh layouts of the family, as MiniGrid's would.
+    ``RedBlueDoorEnv`` (this exact class) likewise converts to
+    :class:`~jaxgrid.levels.rooms.RedBlueDoors`, with the cells of ``mg_env.red_door`` and
+    ``mg_env.blue_door`` in ``state.extras``.
 
-    Any other class that overrides ``step`` (DynamicObstacles moves its balls, Memory,
-    RedBlueDoors, subclasses of the families above, ...) has rules of its own that are not
-    reproduced, so it raises ``ValueError`` naming the class, unless ``base_step=True`` asks
-    for its layout under ``MiniGridEnv.step``'s rules alone; ``base_step=True`` gives that
-    ``FixedLevel`` for the four families too. An env that is not a MiniGrid env raises too.
+    Any other class that overrides ``step`` (DynamicObstacles moves its balls, Memory, Fetch,
+    subclasses of the families above, ...) has rules of its own that are not reproduced, so it
+    raises ``ValueError`` naming the class, unless ``base_step=True`` asks for its layout under
+    ``MiniGridEnv.step``'s rules alone; ``base_step=True`` gives that ``FixedLevel`` for the
+    five families too. An env that is not a MiniGrid env raises too.
     """
     from minigrid.minigrid_env import MiniGridEnv  # minigrid is needed here only
 
@@ -97,13 +100,20 @@ def from_minigrid(
 
 def _native_family(env):
     """The native level class for ``env``'s family, or None (see :func:`from_minigrid`)."""
-    from minigrid.envs import BlockedUnlockPickupEnv, KeyCorridorEnv, UnlockEnv, UnlockPickupEnv
+    from minigrid.envs import (
+        BlockedUnlockPickupEnv,
+        KeyCorridorEnv,
+        RedBlueDoorEnv,
+        UnlockEnv,
+        UnlockPickupEnv,
+    )
 
     families = {
         UnlockEnv: keys.Unlock,
         UnlockPickupEnv: keys.UnlockPickup,
         BlockedUnlockPickupEnv: keys.BlockedUnlockPickup,
         KeyCorridorEnv: keys.KeyCorridor,
+        RedBlueDoorEnv: rooms.RedBlueDoors,
     }
     native = families.get(type(env))
     if native is keys.KeyCorridor and env.obj_type != "ball":
@@ -125,19 +135,35 @@ def _settings(env) -> dict:
     )
 
 
+def _cell_of(env, obj, name: str) -> tuple[int, int]:
+    """The cell of ``env``'s grid holding ``obj`` itself (an identity test, as MiniGrid's step
+    rules read the object); ``ValueError`` naming the attribute if no cell does."""
+    for index, held in enumerate(env.grid.grid):
+        if held is obj:
+            return index % env.grid.width, index // env.grid.width  # grid[j * width + i]
+    raise ValueError(f"{type(env).__name__}.{name} is not in its grid")
+
+
 def _convert_native(env, native, grid, carrying, pos, key):
     """``(native env, state, timestep)`` continuing ``env``'s episode under its own rules."""
-    settings = dict(_settings(env), room_size=int(env.room_size))
-    if native is keys.KeyCorridor:
-        settings.update(num_rows=int(env.num_rows), num_cols=int(env.num_cols))
-    elif (env.num_rows, env.num_cols) != (1, 2):
-        raise ValueError(f"{type(env).__name__} must have one row of two rooms")
-    jenv = native(**settings)
-    target = env.door if native is keys.Unlock else env.obj  # the object the step rule tests
-    where = target.cur_pos if target.cur_pos is not None else (-1, -1)
-    mission = keys.mission(OBJECT_TO_IDX[target.type], COLOR_TO_IDX[target.color], where)
+    if native is rooms.RedBlueDoors:
+        jenv = native(**_settings(env))
+        extras = rooms.DoorPair(
+            red=jnp.asarray(_cell_of(env, env.red_door, "red_door"), jnp.int32),
+            blue=jnp.asarray(_cell_of(env, env.blue_door, "blue_door"), jnp.int32),
+        )
+    else:
+        settings = dict(_settings(env), room_size=int(env.room_size))
+        if native is keys.KeyCorridor:
+            settings.update(num_rows=int(env.num_rows), num_cols=int(env.num_cols))
+        elif (env.num_rows, env.num_cols) != (1, 2):
+            raise ValueError(f"{type(env).__name__} must have one row of two rooms")
+        jenv = native(**settings)
+        target = env.door if native is keys.Unlock else env.obj  # what the step rule tests
+        where = target.cur_pos if target.cur_pos is not None else (-1, -1)
+        extras = keys.mission(OBJECT_TO_IDX[target.type], COLOR_TO_IDX[target.color], where)
     state = jenv.init_state(
-        grid, pos, int(env.agent_dir), jax.random.PRNGKey(0) if key is None else key, mission
+        grid, pos, int(env.agent_dir), jax.random.PRNGKey(0) if key is None else key, extras
     )
     state = state.replace(
         carrying=jnp.asarray(carrying, jnp.uint8),

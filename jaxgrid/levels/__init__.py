@@ -4,7 +4,7 @@ from jaxgrid.levels.classic import DoorKey, Empty, LavaGap
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.levels.keys import BlockedUnlockPickup, KeyCorridor, Unlock, UnlockPickup
 from jaxgrid.levels.navigation import Crossing, DistShift, FourRooms
-from jaxgrid.levels.rooms import LockedRoom, MultiRoom
+from jaxgrid.levels.rooms import LockedRoom, MultiRoom, RedBlueDoors
 
 __all__ = [
     "BlockedUnlockPickup",
@@ -18,6 +18,7 @@ __all__ = [
     "LavaGap",
     "LockedRoom",
     "MultiRoom",
+    "RedBlueDoors",
     "Unlock",
     "UnlockPickup",
 ]

@@ -1,4 +1,4 @@
-"""MiniGrid's MultiRoom and LockedRoom levels, generated natively.
+"""MiniGrid's MultiRoom, LockedRoom and RedBlueDoors levels, generated natively.
 
 Each ``generate`` mirrors the ``_gen_grid`` of the MiniGrid class it names; the comments quote
 the MiniGrid call each line reproduces. A rejection-sampled ``place_obj``/``place_agent`` is the
@@ -14,8 +14,10 @@ and the accepted one is the first that completes, so its distribution is the pro
 process's conditioned on completing, which is MiniGrid's, whatever order the random numbers
 are drawn in.
 
-MultiRoom and LockedRoom step with ``MiniGridEnv.step``'s rules. :data:`IDS` maps MiniGrid's
-ids, with MiniGrid's per-id defaults, to factories.
+MultiRoom and LockedRoom step with ``MiniGridEnv.step``'s rules. RedBlueDoors overrides
+``step`` in MiniGrid and here alike: opening the blue door ends the episode, with the success
+reward if the red door was open before that step and 0 otherwise (see :class:`RedBlueDoors`).
+:data:`IDS` maps MiniGrid's ids, with MiniGrid's per-id defaults, to factories.
 """
 
 from __future__ import annotations
@@ -29,16 +31,21 @@ from flax import struct
 
 from jaxgrid import grid as G
 from jaxgrid.constants import (
+    BLUE,
     CLOSED,
     DOOR,
     EMPTY_CELL,
     GOAL_CELL,
     KEY,
     LOCKED,
+    OPEN,
+    RED,
+    WALL,
     WALL_CELL,
 )
-from jaxgrid.environment import Environment
-from jaxgrid.types import State
+from jaxgrid.dynamics import get_cell, transition
+from jaxgrid.environment import Environment, check_action
+from jaxgrid.types import State, TimeStep
 
 NUM_COLOURS = 6  # MiniGrid's COLOR_NAMES
 
@@ -383,6 +390,88 @@ class LockedRoom(Environment):
         return self.init_state(grid, agent, G.randint(u[13], 0, 4), key)
 
 
+# ------------------------------------------------------------------------- RedBlueDoors
+
+
+@struct.dataclass
+class DoorPair:
+    """The cells of RedBlueDoors' two doors (MiniGrid's ``self.red_door``/``self.blue_door``),
+    int32 ``(2,)`` each. Doors never move, so a door's state is read from its cell."""
+
+    red: jax.Array
+    blue: jax.Array
+
+
+def _is_open(grid, pos) -> jax.Array:
+    cell = get_cell(grid, pos)
+    return (cell[0] == DOOR) & (cell[2] == OPEN)
+
+
+class RedBlueDoors(Environment):
+    """``RedBlueDoorEnv``: a square room with a red door in its left wall and a blue door in
+    its right wall; open the red one, then the blue one.
+
+    The room is ``height x height`` cells (walls included) at column ``(width - height) // 2``
+    (MiniGrid's ``size // 2`` at its only width, ``2 * size``), inside the outer walls. The
+    agent is uniform in the room with a uniform direction; each door's row is uniform among
+    the wall's inner cells. The width must leave a free column outside each door (at least
+    ``height + 4``; MiniGrid's size 3 puts the red door against the outer wall).
+
+    ``step`` is ``MiniGridEnv.step``, then MiniGrid's rule: if the blue door is open after the
+    step, the episode terminates, with ``reward = 1 - 0.9 * step_count / max_steps`` if the red
+    door was open before the step and 0 otherwise; else, if the red door is open after the step
+    and the blue one was open before it (it was just closed), the episode terminates with 0.
+    As in MiniGrid, stepping on after termination applies the rule again. The doors' cells are
+    in ``state.extras`` (:class:`DoorPair`). Defaults (``MiniGrid-RedBlueDoors-8x8-v0``):
+    16 x 8, ``max_steps`` 1280.
+    """
+
+    def min_size(self):
+        # A room of one interior cell, and a free column between each door and the outer wall:
+        # (width - height) // 2 >= 2 on the left, as many or one more on the right.
+        return self.height + 4, 3, "the square room of side height and a free column each side"
+
+    def generate(self, key: jax.Array) -> State:
+        w, size = self.width, self.height
+        left = (w - size) // 2  # self.size // 2
+        u = jax.random.uniform(key, (4,))
+        # wall_rect(0, 0, 2 * size, size); wall_rect(size // 2, 0, size, size)
+        grid = G.room(w, size)
+        grid[left, :] = grid[left + size - 1, :] = WALL_CELL
+        xs, ys = G.coords(w, size)
+        # place_agent(top=(size // 2, 0), size=(size, size))
+        room = (xs >= left) & (xs < left + size)
+        agent = G.sample_cell(u[0], jnp.asarray((grid[..., 0] != WALL) & room))
+        direction = G.randint(u[1], 0, 4)
+        # grid.set(size // 2, _rand_int(1, size - 1), Door("red"))
+        red = jnp.stack([jnp.int32(left), G.randint(u[2], 1, size - 1)])
+        # grid.set(size // 2 + size - 1, _rand_int(1, size - 1), Door("blue"))
+        blue = jnp.stack([jnp.int32(left + size - 1), G.randint(u[3], 1, size - 1)])
+        grid = G.put(grid, red, G.cell(DOOR, RED, CLOSED))
+        grid = G.put(grid, blue, G.cell(DOOR, BLUE, CLOSED))
+        return self.init_state(grid, agent, direction, key, DoorPair(red=red, blue=blue))
+
+    def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
+        """``MiniGridEnv.step``, then the red-then-blue rule (see the class docstring)."""
+        check_action(action)
+        doors = state.extras
+        red_before = _is_open(state.grid, doors.red)  # self.red_door.is_open
+        blue_before = _is_open(state.grid, doors.blue)
+        state, reward, terminated, truncated = transition(state, action, self.max_steps)
+        red_after = _is_open(state.grid, doors.red)
+        blue_after = _is_open(state.grid, doors.blue)
+        success = 1.0 - 0.9 * (state.step_count.astype(jnp.float32) / self.max_steps)
+        # if blue_door_opened_after: reward = self._reward() if red_door_opened_before else 0
+        # elif red_door_opened_after and blue_door_opened_before: reward = 0
+        reward = jnp.where(
+            blue_after,
+            jnp.where(red_before, success, 0.0),
+            jnp.where(red_after & blue_before, 0.0, reward),
+        ).astype(jnp.float32)
+        terminated = terminated | blue_after | (red_after & blue_before)
+        return state, self.make_timestep(state, reward, terminated, truncated)
+
+
 # ----------------------------------------------------------------------------------- ids
 
 
@@ -398,6 +487,11 @@ def _multi_room(num_rooms: int, max_room_size: int = 10) -> Callable[[], Environ
     )
 
 
+def _red_blue_doors(size: int) -> Callable[[], Environment]:
+    # RedBlueDoorEnv(size): 2 * size x size, max_steps 20 * size**2.
+    return lambda: RedBlueDoors(width=2 * size, height=size, max_steps=20 * size**2)
+
+
 IDS: dict[str, Callable[[], Environment]] = {
     "MiniGrid-MultiRoom-N2-S4-v0": _multi_room(2, 4),
     "MiniGrid-MultiRoom-N4-S5-v0": _multi_room(6, 5),  # MiniGrid's legacy id: six rooms
@@ -405,4 +499,6 @@ IDS: dict[str, Callable[[], Environment]] = {
     "MiniGrid-MultiRoom-N6-v0": _multi_room(6),
     # LockedRoomEnv(size=19): max_steps 10 * size.
     "MiniGrid-LockedRoom-v0": lambda: LockedRoom(width=19, height=19, max_steps=190),
+    "MiniGrid-RedBlueDoors-6x6-v0": _red_blue_doors(6),
+    "MiniGrid-RedBlueDoors-8x8-v0": _red_blue_doors(8),
 }

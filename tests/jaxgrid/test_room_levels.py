@@ -1,4 +1,4 @@
-"""MultiRoom and LockedRoom, generated natively, against MiniGrid 3.2.0.
+"""MultiRoom, LockedRoom and RedBlueDoors, generated natively, against MiniGrid 3.2.0.
 
 * Layouts: many vmapped jaxgrid resets and MiniGrid resets (one seeded RNG stream) are read
   back into the generator's random choices by one function for both sides, which also checks
@@ -7,19 +7,24 @@
   first room's corner and size, each next room's size, exit wall, door offsets and door colour
   step, the sequence of exit walls, the chain's bounding box, agent and goal cells (and the
   first room's corner in 4 x 4 blocks, where the chain's acceptance shows most). LockedRoom:
-  locked room, goal and key cells, key room, each room's door colour, agent pose. Each
-  marginal must have the same support and pass a two-sample chi-square homogeneity test at
-  ``ALPHA`` (``helpers.layout_stats``); cells occupied by walls and doors pass a 2x2 test per
-  cell at ``ALPHA / cells``. Seeds are fixed, so outcomes are deterministic. A MultiRoom
-  generator that drops MiniGrid's eight tries per room (each room uniform among the places
-  that fit) is caught at the default run's sample size.
+  locked room, goal and key cells, key room, each room's door colour, agent pose.
+  RedBlueDoors: the doors' rows and the agent's pose. Each marginal must have the same support
+  and pass a two-sample chi-square homogeneity test at ``ALPHA`` (``helpers.layout_stats``);
+  cells occupied by walls and doors pass a 2x2 test per cell at ``ALPHA / cells``. Seeds are
+  fixed, so outcomes are deterministic. A MultiRoom generator that drops MiniGrid's eight
+  tries per room (each room uniform among the places that fit) is caught at the default run's
+  sample size.
 * Steps: natively generated MultiRoom and LockedRoom states, copied into MiniGrid, step like
   MiniGrid (every field, every step) under actions of the BFS oracle with random ones mixed
-  in; the oracle alone solves every such reset.
+  in; the oracle alone solves every such reset. RedBlueDoors episodes converted with
+  ``from_minigrid`` (to the native level) step like MiniGrid's own ``step`` under scripted
+  door orders (red then blue, blue first, red opened and closed again) and random actions;
+  and, one step at a time, from states after MiniGrid's termination, where its rule keeps
+  firing. A script solves every native RedBlueDoors reset.
 * Registry defaults, conversions and refused settings.
 
-The default run covers one MultiRoom id and LockedRoom; ``-m slow`` runs every id with more
-samples, settings without a registered id, and measures compile times.
+The default run covers one MultiRoom id, LockedRoom and one RedBlueDoors id; ``-m slow`` runs
+every id with more samples, settings without a registered id, and measures compile times.
 """
 
 from __future__ import annotations
@@ -44,22 +49,30 @@ from helpers.layout_stats import (
     single_cell,
 )
 from helpers.xla import CHEAP
-from minigrid.envs import LockedRoomEnv, MultiRoomEnv
+from minigrid.core.world_object import Door
+from minigrid.envs import LockedRoomEnv, MultiRoomEnv, RedBlueDoorEnv
 from scipy.stats import chi2_contingency
 
 import jaxgrid
 from jaxgrid.compat import from_minigrid
 from jaxgrid.constants import (
+    BLUE,
     CLOSED,
     DIR_TO_VEC,
     DOOR,
     EMPTY,
+    FORWARD,
     GOAL,
     KEY,
+    LEFT,
     LOCKED,
+    OPEN,
+    RED,
+    RIGHT,
+    TOGGLE,
     WALL,
 )
-from jaxgrid.levels import FixedLevel, LockedRoom, MultiRoom
+from jaxgrid.levels import FixedLevel, LockedRoom, MultiRoom, RedBlueDoors
 from jaxgrid.levels import rooms as rooms_module
 from jaxgrid.levels.rooms import IDS
 from jaxgrid.oracle import oracle_action
@@ -67,9 +80,11 @@ from jaxgrid.oracle import oracle_action
 N_MINIGRID = 2000  # MiniGrid resets per layout test; jaxgrid draws twice as many (MultiRoom: as
 N_SLOW = 6000  # many, its resets being the costly ones)
 MULTIROOMS = [i for i in IDS if "MultiRoom" in i]
+REDBLUE = [i for i in IDS if "RedBlue" in i]
 DEFAULT_LAYOUTS = {
     "MiniGrid-MultiRoom-N6-v0",
     "MiniGrid-LockedRoom-v0",
+    "MiniGrid-RedBlueDoors-8x8-v0",
 }
 
 
@@ -326,6 +341,46 @@ def test_locked_room_rooms_are_minigrids():
     assert doors.tolist() == [list(r.doorPos) for r in mg.rooms]
 
 
+# ---------------------------------------------------------------- RedBlueDoors layouts
+
+
+def red_blue_choices(env, grids, pos, dirs):
+    """Check RedBlueDoors layouts; return their random choices."""
+    rows = np.arange(len(grids))
+    kinds = grids[..., 0]
+    size = env.height
+    left = (env.width - size) // 2
+    red = single_cell(grids, (kinds == DOOR) & (grids[..., 1] == RED), "red door")
+    blue = single_cell(grids, (kinds == DOOR) & (grids[..., 1] == BLUE), "blue door")
+    assert (red[:, 0] == left).all() and (blue[:, 0] == left + size - 1).all()
+    assert ((kinds == DOOR).sum(axis=(1, 2)) == 2).all()
+    assert (grids[kinds == DOOR][:, 2] == CLOSED).all()
+    xs, ys = _coords(env.width, size)
+    outer = (xs == 0) | (xs == env.width - 1) | (ys == 0) | (ys == size - 1)
+    walls = outer | (xs == left) | (xs == left + size - 1)
+    assert ((kinds == WALL) | (kinds == DOOR) == walls[None]).all(), "walls off the layout"
+    assert ((pos[:, 0] > left) & (pos[:, 0] < left + size - 1)).all(), "agent outside the room"
+    assert (kinds[rows, pos[:, 0], pos[:, 1]] == EMPTY).all()
+    agent = cell_id(pos, size)
+    return {
+        "agent_cell": agent,
+        "agent_dir": dirs,
+        "red_row": red[:, 1],
+        "blue_row": blue[:, 1],
+        "red_and_blue_rows": red[:, 1] * size + blue[:, 1],
+        "agent_and_red_row": agent * size + red[:, 1],
+    }
+
+
+@pytest.mark.parametrize("env_id", [_param(i, DEFAULT_LAYOUTS) for i in REDBLUE])
+def test_red_blue_doors_layout_distribution(env_id):
+    env = jaxgrid.make(env_id)
+    n = N_MINIGRID if env_id in DEFAULT_LAYOUTS else N_SLOW
+    ours = red_blue_choices(env, *jax_resets(env, 2 * n))
+    ref = red_blue_choices(env, *minigrid_resets(R.make_reference(env_id), n))
+    compare_all(env_id, ours, ref)
+
+
 # -------------------------------------------------------- settings without a registered id
 
 
@@ -362,6 +417,14 @@ def test_other_settings_match_minigrids_generator(label):
         size = int(label.split()[1])
         env = LockedRoom(width=size, height=size, max_steps=10 * size)
         check_locked_room_layouts(label, env, LockedRoomEnv(size=size), N_SLOW)
+
+
+@pytest.mark.slow
+def test_red_blue_doors_of_odd_size_match_minigrids_generator():
+    env = RedBlueDoors(width=10, height=5, max_steps=500)
+    ours = red_blue_choices(env, *jax_resets(env, 2 * N_SLOW))
+    ref = red_blue_choices(env, *minigrid_resets(RedBlueDoorEnv(size=5), N_SLOW))
+    compare_all("RedBlueDoors 5", ours, ref)
 
 
 @pytest.mark.slow
@@ -451,6 +514,176 @@ def test_native_levels_step_like_minigrid_many_seeds(env_id):
     assert stats["goal"] >= 32, stats  # every oracle-only episode, some noisy ones
 
 
+class Planner:
+    """Shortest action lists that face a cell: breadth-first over cell and direction, walking
+    on empty cells and open doors of a MiniGrid env's grid."""
+
+    def __init__(self, mg):
+        self.mg = mg
+        self.actions = []
+
+    def path(self, cell):
+        """The actions that face ``cell`` from the agent's pose, or None if none do."""
+        grid = self.mg.grid.encode()
+        walkable = (grid[..., 0] == EMPTY) | ((grid[..., 0] == DOOR) & (grid[..., 2] == OPEN))
+        start = (tuple(int(c) for c in self.mg.agent_pos), int(self.mg.agent_dir))
+        prev, queue = {start: None}, collections.deque([start])
+        while queue:
+            pose = queue.popleft()
+            (x, y), d = pose
+            front = (x + DIR_TO_VEC[d][0], y + DIR_TO_VEC[d][1])
+            if front == tuple(cell):
+                path = []
+                while prev[pose] is not None:
+                    pose, action = prev[pose]
+                    path.insert(0, action)
+                return path
+            moves = [(((x, y), (d - 1) % 4), LEFT), (((x, y), (d + 1) % 4), RIGHT)]
+            if walkable[front]:
+                moves.append(((front, d), FORWARD))
+            for nxt, action in moves:
+                if nxt not in prev:
+                    prev[nxt] = (pose, action)
+                    queue.append(nxt)
+        return None
+
+    def toggle(self, cell):
+        """Face ``cell`` and toggle it, stepping the env."""
+        for action in self.path(cell) + [TOGGLE]:
+            self.mg.step(int(action))
+            self.actions.append(int(action))
+
+
+def cell_holding(mg, name):
+    """``(x, y)`` of the cell holding the object ``mg.<name>`` itself."""
+    for index, obj in enumerate(mg.grid.grid):
+        if obj is getattr(mg, name):
+            return index % mg.width, index // mg.width
+    raise AssertionError(f"{name} is not in the grid")
+
+
+# door orders: red then blue (success), blue first (failure), red opened and closed again
+# before blue (failure), red only (then random actions)
+SCRIPTS = (
+    ("red_door", "blue_door"),
+    ("blue_door",),
+    ("red_door", "red_door", "blue_door"),
+    ("red_door",),
+)
+MAX_T = 200
+
+
+def scripted(env_id, seed, script):
+    """A MiniGrid env reset with ``seed``, and the actions that toggle the doors of ``script``
+    in order (found on a copy), then random ones up to ``MAX_T``."""
+    mg = R.make_reference(env_id)
+    mg.reset(seed=seed)
+    copy = R.make_reference(env_id)
+    copy.reset(seed=seed)
+    planner = Planner(copy)
+    for door in script:
+        planner.toggle(cell_holding(copy, door))
+    actions = planner.actions + list(R.draw_actions(seed, 1, MAX_T)[0])
+    return mg, np.array(actions[:MAX_T], np.int32), len(planner.actions)
+
+
+def red_blue_differential(env_id, seeds):
+    """Convert MiniGrid resets, step both under the scripts' actions, compare every field."""
+    states, episodes, env = [], [], None
+    for seed in seeds:
+        mg, actions, _ = scripted(env_id, seed, SCRIPTS[seed % len(SCRIPTS)])
+        converted, state, _ = from_minigrid(mg)
+        assert type(converted) is RedBlueDoors and (env is None or converted == env)
+        env = converted
+        assert tuple(state.extras.red.tolist()) == cell_holding(mg, "red_door")
+        assert tuple(state.extras.blue.tolist()) == cell_holding(mg, "blue_door")
+        states.append(state)
+        episodes.append(R.record_episode(mg, actions, seed=seed))
+    actions = jnp.asarray(np.stack([ep.actions for ep in episodes]))
+    obs0, outs = R.jax_rollout(env, R.stack(states), actions)
+    R.compare(f"{env_id} own step", episodes, obs0, outs)
+    return episodes
+
+
+def outcomes(episodes):
+    """``(successes, failures)``: episodes MiniGrid ended with a positive / zero reward."""
+    ends = [(ep.steps["terminated"][ep.length - 1], ep.steps["reward"][ep.length - 1])
+            for ep in episodes]  # fmt: skip
+    return sum(bool(t and r > 0) for t, r in ends), sum(bool(t and r == 0) for t, r in ends)
+
+
+@pytest.mark.parametrize("env_id", [_param(i, {"MiniGrid-RedBlueDoors-6x6-v0"}) for i in REDBLUE])
+def test_red_blue_doors_step_like_minigrid(env_id):
+    episodes = red_blue_differential(env_id, range(12))
+    wins, losses = outcomes(episodes)
+    assert wins >= 3 and losses >= 6, (wins, losses)  # the scripts' outcomes, at least
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", REDBLUE)
+def test_red_blue_doors_step_like_minigrid_many_seeds(env_id):
+    episodes = red_blue_differential(env_id, range(100, 164))
+    wins, losses = outcomes(episodes)
+    print(f"{env_id}: {R.coverage(episodes)}, {wins} successes, {losses} failures")
+    assert wins >= 16 and losses >= 32
+
+
+def test_red_blue_doors_rule_keeps_firing_after_termination_like_minigrid():
+    """MiniGrid steps on after termination: with both doors open every step pays again, with
+    only the blue one open every step ends with 0, and toggling a door changes which (or
+    stops the rule). From MiniGrid states after a success or a failure, the doors are toggled
+    in turn with random actions between; every state is converted and stepped once by both."""
+    env_id = "MiniGrid-RedBlueDoors-6x6-v0"
+    states, episodes, env = [], [], None
+    rng = np.random.default_rng(0)
+    for seed in range(6):
+        mg, actions, played = scripted(env_id, seed, SCRIPTS[seed % 2])
+        for action in actions[:played]:
+            mg.step(int(action))
+        planner, plan = Planner(mg), []
+        targets = ["blue_door", "red_door", "blue_door", "red_door", "blue_door"]
+        for _ in range(30):
+            if not plan and targets and rng.random() < 0.5:
+                plan = (planner.path(cell_holding(mg, targets.pop(0))) or []) + [TOGGLE]
+            action = plan.pop(0) if plan else int(rng.choice(7, p=R.ACTION_PROBS))
+            converted, state, _ = from_minigrid(mg)
+            env = env or converted
+            states.append(state)
+            episodes.append(R.record_episode(mg, np.array([action], np.int32), seed=seed))
+    actions = jnp.asarray(np.stack([ep.actions for ep in episodes]))
+    obs0, outs = R.jax_rollout(env, R.stack(states), actions)
+    R.compare(f"{env_id} after termination", episodes, obs0, outs)
+    reward = np.array([ep.steps["reward"][0] for ep in episodes])
+    done = np.array([ep.steps["terminated"][0] for ep in episodes])
+    print(f"{(done & (reward > 0)).sum()} paid, {(done & (reward == 0)).sum()} ended with 0, "
+          f"{(~done).sum()} went on")  # fmt: skip
+    assert (done & (reward > 0)).sum() >= 10 and (done & (reward == 0)).sum() >= 10
+    assert (~done).sum() >= 5, "no state where the rule stops firing"
+
+
+def test_every_red_blue_reset_is_solved_by_its_script():
+    env = jaxgrid.make("MiniGrid-RedBlueDoors-8x8-v0")
+    states = jax_reset_states(env, 16, seed=4)
+    plans = []
+    for b in range(16):
+        mg = R.reference_for(env, jax.tree.map(lambda x, b=b: x[b], states))
+        grid = mg.grid.encode()
+        planner = Planner(mg)
+        for colour in (RED, BLUE):
+            door = (grid[..., 0] == DOOR) & (grid[..., 1] == colour)
+            planner.toggle(single_cell(grid[None], door[None])[0])
+        plans.append(planner.actions)
+    length = max(map(len, plans))
+    actions = np.stack([np.pad(p, (0, length - len(p)), constant_values=LEFT) for p in plans])
+    _, outs = R.jax_rollout(env, jax.tree.map(jnp.asarray, states), jnp.asarray(actions))
+    last = np.array([len(p) - 1 for p in plans])
+    rows = np.arange(16)
+    assert np.asarray(outs["terminated"])[rows, last].all()
+    assert (np.asarray(outs["reward"])[rows, last] > 0).all()
+    early = np.arange(length)[None] < last[:, None]
+    assert not np.asarray(outs["terminated"])[early].any(), "ended before the blue door"
+
+
 # --------------------------------------------------------------------------- registry
 
 
@@ -465,8 +698,28 @@ def test_make_matches_minigrids_defaults(env_id):
         settings = (env.min_num_rooms, env.max_num_rooms, env.max_room_size)
         assert settings == (mg.minNumRooms, mg.maxNumRooms, mg.maxRoomSize)
     converted = from_minigrid(mg)[0]
-    assert isinstance(converted, FixedLevel) and R.config_env(converted) == R.config_env(env)
+    if isinstance(env, RedBlueDoors):
+        assert converted == env  # the native level, this id's configuration
+    else:
+        assert isinstance(converted, FixedLevel) and R.config_env(converted) == R.config_env(env)
     assert env_id in jaxgrid.registered_ids()
+
+
+def test_from_minigrid_red_blue_doors_conversions():
+    mg = R.make_reference("MiniGrid-RedBlueDoors-6x6-v0")
+    mg.reset(seed=3)
+    assert isinstance(from_minigrid(mg, base_step=True)[0], FixedLevel)
+
+    class MyDoors(RedBlueDoorEnv):
+        pass
+
+    mine = MyDoors(size=6)
+    mine.reset(seed=0)
+    with pytest.raises(ValueError, match="MyDoors overrides MiniGridEnv.step"):
+        from_minigrid(mine)
+    mg.grid.grid = [Door("red") if o is mg.red_door else o for o in mg.grid.grid]
+    with pytest.raises(ValueError, match=r"RedBlueDoorEnv\.red_door is not in its grid"):
+        from_minigrid(mg)
 
 
 @pytest.mark.parametrize(
@@ -484,10 +737,12 @@ def test_make_matches_minigrids_defaults(env_id):
         (lambda: LockedRoom(width=19, height=18, max_steps=9), "height"),
         (lambda: LockedRoom(width=7, height=19, max_steps=9), "width"),
         (lambda: LockedRoom(width=19, height=11, max_steps=9), "height"),
+        (lambda: RedBlueDoors(width=9, height=8, max_steps=9), "width"),
+        (lambda: RedBlueDoors(width=16, height=2, max_steps=9), "height"),
     ],
 )
 def test_impossible_settings_raise_naming_the_setting(make, setting):
-    with pytest.raises(ValueError, match=rf"^(MultiRoom|LockedRoom)\.{setting} "):
+    with pytest.raises(ValueError, match=rf"^(MultiRoom|LockedRoom|RedBlueDoors)\.{setting} "):
         make()
 
 
