@@ -361,9 +361,8 @@ class LockedRoom(Environment):
         u = jax.random.uniform(key, (14,))
         grid = jnp.asarray(self.layout())
 
-        def rand_pos(
-            room, ux, uy
-        ):  # LockedRoom.rand_pos: _rand_pos(topX + 1, topX + sizeX - 1, ..)
+        # LockedRoom.rand_pos: _rand_pos(topX + 1, topX + sizeX - 1, topY + 1, topY + sizeY - 1)
+        def rand_pos(room, ux, uy):
             (x, y), (sx, sy) = _one_hot_select(room, tops), _one_hot_select(room, sizes)
             return jnp.stack([G.randint(ux, x + 1, x + sx - 1), G.randint(uy, y + 1, y + sy - 1)])
 
