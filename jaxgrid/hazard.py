@@ -1,11 +1,12 @@
 """``HazardRooms-v0``: four rooms with costly hazards, under a rich language constraint.
 
-A 13x13 grid split into four 5x5 rooms by a cross of walls, with one closed door in each of
-the four wall segments (four distinct colours of the five non-green ones). The agent starts
-in one room and the goal lies in the opposite one, so there are two routes, each through two
-doors. A key lies in the agent's room. Strips of three cells of lava and of coloured floor
-("water" is blue, "grass" green, and yellow floor) are scattered over the rooms, never on the
-cells in front of a door, the agent, the goal or the key. Lava costs instead of killing: the
+A grid (13x13 for the registered id, 9x9 at least) split into four rooms by a cross of
+walls, with one closed door in each of the four wall segments (four distinct colours of the
+five non-green ones). The agent starts in one room and the goal lies in the opposite one, so
+there are two routes, each through two doors. A key lies in the agent's room. Strips of three
+cells of lava and of coloured floor ("water" is blue, "grass" green, and yellow floor) are
+scattered over the rooms, never on the cells in front of a door, the agent, the goal or the
+key. Lava costs instead of killing: the
 agent walks on it as on floor, and only the constraint makes it a hazard.
 
 Each episode draws a constraint of :mod:`jaxgrid.hazard_language`: its type uniformly among
@@ -210,8 +211,6 @@ class HazardRooms(Environment):
     def __post_init__(self):
         super().__post_init__()
         name = type(self).__name__
-        if (self.width, self.height) != (13, 13):
-            raise ValueError(f"{name} is laid out on a 13x13 grid, got {self.width}x{self.height}")
         if self.split not in SPLITS:
             raise ValueError(f"{name}.split must be one of {SPLITS}, got {self.split!r}")
         for field, hi in (("budgets", HL.MAX_BUDGET), ("distances", HL.MAX_DISTANCE)):
@@ -227,6 +226,10 @@ class HazardRooms(Environment):
                 raise ValueError(f"{name}.sentences must be a non-empty tuple of sentences")
             self.constraint_table()  # parses and checks every sentence now
 
+    def min_size(self):
+        # Every room interior at least 3x3: room for a strip and a cell beside each door.
+        return 9, 9, "four rooms of at least 3x3 cells (a hazard strip is 3 cells long)"
+
     def constraint_table(self) -> dict:
         """The numeric table constraints are drawn from (see :func:`_rows_to_arrays`)."""
         if self.sentences is not None:
@@ -241,26 +244,32 @@ class HazardRooms(Environment):
         first, or kind -1; each strip is of that hazard with probability :data:`NAMED_SHARE`.
         """
         w, h = self.width, self.height
+        mx, my = w // 2, h // 2  # the cross of walls
         xs, ys = G.coords(w, h)
         grid = jnp.asarray(G.room(w, h))
-        wall = (xs == w // 2) | (ys == h // 2)
-        grid = jnp.where(wall[..., None], jnp.asarray(WALL_CELL), grid)
+        grid = jnp.where(((xs == mx) | (ys == my))[..., None], jnp.asarray(WALL_CELL), grid)
         colours = _distinct_colours(u[0:4], 4)
         # Doors: top and bottom of the vertical wall, left and right of the horizontal one.
-        m = w // 2
         doors = [
-            (m, G.randint(u[4], 1, m)),
-            (m, G.randint(u[5], m + 1, h - 1)),
-            (G.randint(u[6], 1, m), m),
-            (G.randint(u[7], m + 1, w - 1), m),
+            (mx, G.randint(u[4], 1, my)),
+            (mx, G.randint(u[5], my + 1, h - 1)),
+            (G.randint(u[6], 1, mx), my),
+            (G.randint(u[7], mx + 1, w - 1), my),
         ]
         protect = jnp.zeros((w, h), bool)
         for (dx, dy), colour in zip(doors, colours, strict=True):
             grid = G.put(grid, (dx, dy), G.cell(DOOR, colour, CLOSED))
-            near = (jnp.abs(xs - dx) + jnp.abs(ys - dy)) == 1
-            protect = protect | near
-        rooms = [(xs < m) & (ys < m), (xs > m) & (ys < m), (xs < m) & (ys > m), (xs > m) & (ys > m)]
-        rooms = jnp.stack([r & (xs > 0) & (ys > 0) & (xs < w - 1) & (ys < h - 1) for r in rooms])
+            protect = protect | ((jnp.abs(xs - dx) + jnp.abs(ys - dy)) == 1)
+        # Rooms 0 1 / 2 3 (room 3 - r is opposite room r): origin and size of each interior.
+        left, top = np.array([1, mx + 1, 1, mx + 1]), np.array([1, 1, my + 1, my + 1])
+        room_w, room_h = (
+            np.array([mx - 1, w - 2 - mx] * 2),
+            np.array([my - 1] * 2 + [h - 2 - my] * 2),
+        )
+        rooms = jnp.stack([
+            (xs >= x0) & (xs < x0 + rw) & (ys >= y0) & (ys < y0 + rh)
+            for x0, y0, rw, rh in zip(left, top, room_w, room_h, strict=True)
+        ])  # fmt: skip
         agent_room = G.randint(u[8], 0, 4)
         agent = G.sample_cell(u[9], rooms[agent_room] & ~protect)
         goal = G.sample_cell(u[10], rooms[3 - agent_room] & ~protect)
@@ -274,17 +283,14 @@ class HazardRooms(Environment):
             use_named = (named[0] >= 0) & (u[15 + 4 * len(STRIPS) + i] < NAMED_SHARE)
             kind = jnp.where(use_named, named[0], kind)
             colour = jnp.where(use_named, named[1], colour)
-            room = rooms[G.randint(v[0], 0, 4)]
-            across = v[1] < 0.5  # horizontal strip
-            # Top-left cell of the strip, in room coordinates (0..4 each way).
-            a = G.randint(v[2], 0, 5 - _STRIP_LEN + 1)
-            b = G.randint(v[3], 0, 5)
-            rx = jnp.min(jnp.where(room, xs, w))
-            ry = jnp.min(jnp.where(room, ys, h))
-            sx = rx + jnp.where(across, a, b)
-            sy = ry + jnp.where(across, b, a)
-            dx = xs - sx
-            dy = ys - sy
+            r = G.randint(v[0], 0, 4)
+            across = v[1] < 0.5  # a horizontal strip
+            rw, rh = jnp.asarray(room_w)[r], jnp.asarray(room_h)[r]
+            # First cell, in room coordinates: along the strip, then across it.
+            a = G.randint(v[2], 0, jnp.where(across, rw, rh) - _STRIP_LEN + 1)
+            b = G.randint(v[3], 0, jnp.where(across, rh, rw))
+            dx = xs - jnp.asarray(left)[r] - jnp.where(across, a, b)
+            dy = ys - jnp.asarray(top)[r] - jnp.where(across, b, a)
             strip = jnp.where(
                 across,
                 (dy == 0) & (dx >= 0) & (dx < _STRIP_LEN),

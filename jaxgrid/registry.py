@@ -6,6 +6,7 @@ import dataclasses
 from collections.abc import Callable
 
 from jaxgrid.environment import Environment
+from jaxgrid.hazard import HazardRooms
 from jaxgrid.levels import DoorKey, Empty, LavaGap, keys, navigation, rooms
 from jaxgrid.scenarios import ThreeRoomsKey, TwoRooms
 
@@ -38,6 +39,8 @@ def _scenarios() -> dict[str, Callable[[], Environment]]:
         "TwoRooms-v0": lambda: TwoRooms(**two),
         "TwoRoomsLava-v0": lambda: TwoRooms(**two, has_lava=True),
         "ThreeRoomsKey-v0": lambda: ThreeRoomsKey(width=13, height=7, max_steps=150, view_size=5),
+        # Beyond the paper: rich constraints, MiniGrid's default 7x7 view.
+        "HazardRooms-v0": lambda: HazardRooms(width=13, height=13, max_steps=150),
     }
 
 

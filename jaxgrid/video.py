@@ -26,8 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgrid import language
 from jaxgrid.io import atomic_write
-from jaxgrid.language import detokenize
 from jaxgrid.render import render_view
 from jaxgrid.types import State, TimeStep
 
@@ -156,6 +156,7 @@ def render_episode(
     rewards = np.asarray(timesteps.reward, np.float64).reshape(num)
     done = (np.asarray(timesteps.terminated) | np.asarray(timesteps.truncated)).reshape(num)
     tokens = np.asarray(obs["constraint"]) if "constraint" in obs else None
+    detokenize = getattr(base, "language", language).detokenize  # the env's own vocabulary
     violations = np.asarray(info["violation"]).reshape(num) if "violation" in info else None
     lines = []
     for t in range(num):

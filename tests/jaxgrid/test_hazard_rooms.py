@@ -55,7 +55,17 @@ def test_layouts_follow_the_contract(resets):
         zone = states.extras.monitor.zone[e].any(0)
         ax, ay = states.agent_pos[e]
         assert not zone[ax, ay] and not zone[goal[0][0], goal[0][1]]
-    assert (states.grid[..., 0] == LAVA).any(axis=(1, 2)).mean() > 0.9
+    # Most strips are of the hazard a budget or sequence names; avoid clauses get the mix.
+    spec = states.extras.monitor.spec
+    kind, colour = spec.target_kind[:, 0], spec.target_colour[:, 0]
+    ground = (kind == LAVA) | (kind == FLOOR)
+    cells = np.array([
+        ((g[..., 0] == k) & ((k == LAVA) | (g[..., 1] == c))).sum()
+        for g, k, c in zip(states.grid, kind, colour, strict=True)
+    ])  # fmt: skip
+    boosted = ground & ((spec.budget[:, 0] > 0) | (spec.gate[:, 0] != M.ALWAYS))
+    plain = ground & (spec.gate[:, 0] == M.ALWAYS) & (spec.budget[:, 0] == 0)
+    assert cells[boosted].mean() > 2 * cells[plain].mean() > 0
 
 
 def test_constraint_types_are_uniform_and_tokens_say_the_monitored_constraint(resets):
@@ -136,8 +146,8 @@ def test_ignoring_the_constraint_violates_it_often():
 
 
 def test_bad_settings_are_refused():
-    with pytest.raises(ValueError, match="13x13"):
-        HazardRooms(width=11, height=11, max_steps=10)
+    with pytest.raises(ValueError, match="width must be at least 9"):
+        HazardRooms(width=8, height=11, max_steps=10)
     with pytest.raises(ValueError, match="budgets"):
         HazardRooms(width=13, height=13, max_steps=10, budgets=(0, 1))
     with pytest.raises(ValueError, match="split"):
