@@ -13,7 +13,7 @@ raise clear errors before any compile, and every legal world is well formed and 
   untouched (out-of-range actions still act as ``done``, ``jit`` compiles once, ``vmap`` works).
 * gymnasium: actions are checked against the action space; ``render()`` without a mode warns.
 * ``from_minigrid``: levels with their own ``step`` and non-MiniGrid envs are refused, except
-  the four families with a native level of their own rules, which convert to it.
+  the five families with a native level of their own rules, which convert to it.
 """
 
 from __future__ import annotations
@@ -38,12 +38,15 @@ from jaxgrid.levels import (
     BlockedUnlockPickup,
     FixedLevel,
     KeyCorridor,
+    MultiRoom,
+    RedBlueDoors,
     Unlock,
     UnlockPickup,
 )
 from jaxgrid.levels.keys import IDS as KEY_IDS
 from jaxgrid.levels.keys import RoomLevel, roomgrid_size
 from jaxgrid.levels.navigation import IDS as NAVIGATION_IDS
+from jaxgrid.levels.rooms import IDS as ROOM_IDS
 from jaxgrid.oracle import rollout_oracle
 
 KEY0 = jax.random.PRNGKey(0)
@@ -116,6 +119,8 @@ def _expected(env) -> dict[str, int | range | None]:
         counts.update(door=2, lava=int(env.has_lava))
     elif name == "ThreeRoomsKey":
         counts.update(door=2, key=1)
+    elif name == "HazardRooms":  # its lava strips may overlap and are painted over
+        counts.update(door=4, key=1, lava=None)
     elif name == "Crossing":
         counts.update(lava=None if env.obstacle == "lava" else 0)
     elif name == "DistShift":  # columns 3 .. width - 4 of row 1 and of row strip2_row
@@ -131,6 +136,12 @@ def _expected(env) -> dict[str, int | range | None]:
             rows, cols = env.rows_cols()
             walls = rows * (cols - 1) + (rows - 1) * cols - (rows - 1)  # less the corridor's
             counts.update(ball=1, door=range(rows * (cols - 1), walls + 1))
+    elif name == "MultiRoom":  # a door into each room after the first
+        counts.update(door=range(env.max_num_rooms))
+    elif name == "LockedRoom":  # a door into each of the six rooms, one locked
+        counts.update(door=6, key=1)
+    elif name == "RedBlueDoors":  # no goal: success is opening the blue door after the red
+        counts.update(goal=0, door=2)
     else:
         assert name in ("Empty", "FourRooms"), f"{name}: state what its layouts hold"
     return counts
@@ -141,7 +152,9 @@ def _resets_and_oracle(env, key, oracle):
     states, _ = jax.vmap(env.reset)(jax.random.split(key, EPISODES))
     if not oracle:
         return states, None
-    return states, rollout_oracle(env, key, EPISODES)  # the same resets, then the oracle
+    # The same resets, then the oracle (through HazardRooms' lava, which only costs).
+    avoid_lava = type(env).__name__ != "HazardRooms"
+    return states, rollout_oracle(env, key, EPISODES, avoid_lava=avoid_lava)
 
 
 def _check_world(env_id, **settings):
@@ -149,7 +162,7 @@ def _check_world(env_id, **settings):
     # The oracle's success is reaching the goal: it does not know the own-success levels
     # (open the door, pick up the box or ball), so those are checked for solvability by
     # reachability in _check_rooms, and solved by a scripted solution in test_key_levels.
-    oracle = not isinstance(env, RoomLevel)
+    oracle = not isinstance(env, (RoomLevel, RedBlueDoors))
     states, result = jax.device_get(_resets_and_oracle(env, KEY0, oracle))
     expected = _expected(env)
     width, height = env.width, env.height
@@ -160,7 +173,8 @@ def _check_world(env_id, **settings):
         grid, kind = states.grid[i], states.grid[i, ..., 0]
         assert kind.shape == (width, height), where
         ring = np.concatenate([kind[0], kind[-1], kind[:, 0], kind[:, -1]])
-        assert (ring == WALL).all(), f"{where}: an object replaced the outer wall"
+        outer = not isinstance(env, MultiRoom)  # MultiRoom has no outer walls
+        assert (ring == WALL).all() or not outer, f"{where}: an object replaced the outer wall"
         x, y = states.agent_pos[i]
         assert 0 < x < width - 1 and 0 < y < height - 1, where
         assert kind[x, y] == EMPTY, f"{where}: the agent starts on object {kind[x, y]}"
@@ -173,12 +187,18 @@ def _check_world(env_id, **settings):
                 ok = got in want if isinstance(want, range) else got == want
                 assert ok, f"{where}: {got} {name} cells, expected {want}"
         locked = grid[kind == DOOR][grid[kind == DOOR][:, 2] == LOCKED]
-        for kx, ky in np.argwhere(kind == KEY):  # the key opens the locked door
+        keys = np.argwhere(kind == KEY)
+        if type(env).__name__ == "HazardRooms":  # its key opens nothing: it is a trigger
+            keys = keys[:0]
+        for kx, ky in keys:  # the key opens the locked door
             assert len(locked) == 1 and grid[kx, ky, 1] == locked[0, 1], where
         if isinstance(env, RoomLevel):
             _check_rooms(env, grid, (x, y), jax.tree.map(lambda a, i=i: a[i], states.extras), where)
-        else:
+        elif not isinstance(env, MultiRoom):  # its doors: test_room_levels walks them
             _check_doors(env, kind, where)
+        if isinstance(env, RedBlueDoors):  # both doors can be faced from the agent's cell
+            reach = _reach(kind == EMPTY, (x, y))
+            assert all(_faceable(reach, d) for d in np.argwhere(kind == DOOR)), where
         _check_structure(env, kind, where)
     if oracle:
         assert result["success"].all(), f"{where}: the oracle failed {(~result['success']).sum()}"
@@ -186,7 +206,15 @@ def _check_world(env_id, **settings):
 
 
 def _check_doors(env, kind, where):
-    """Each door sits in a vertical wall and leads across it."""
+    """Each door sits in a vertical wall and leads across it (HazardRooms: one door in each
+    half of its middle column and row)."""
+    if type(env).__name__ == "HazardRooms":
+        mx, my = env.width // 2, env.height // 2
+        doors = {tuple(d) for d in np.argwhere(kind == DOOR).tolist()}
+        halves = [{d for d in doors if d[0] == mx and (d[1] < my) == up} for up in (1, 0)]
+        halves += [{d for d in doors if d[1] == my and (d[0] < mx) == lf} for lf in (1, 0)]
+        assert [len(h) for h in halves] == [1, 1, 1, 1], f"{where}: doors {sorted(doors)}"
+        return
     # Rows of a door's wall that may be open: ThreeRoomsKey's second wall has a bottom-row gap.
     gaps = {env.height - 2} if type(env).__name__ == "ThreeRoomsKey" else set()
     for dx, dy in np.argwhere(kind == DOOR):
@@ -301,9 +329,12 @@ ONE_PER_CLASS = {
     "MiniGrid-UnlockPickup-v0",
     "MiniGrid-BlockedUnlockPickup-v0",
     "MiniGrid-KeyCorridorS3R2-v0",
+    "MiniGrid-MultiRoom-N6-v0",
+    "MiniGrid-LockedRoom-v0",
+    "MiniGrid-RedBlueDoors-6x6-v0",
 }
 MIN_SIZE_IDS = [
-    i if i not in {**NAVIGATION_IDS, **KEY_IDS} or i in ONE_PER_CLASS
+    i if i not in {**NAVIGATION_IDS, **KEY_IDS, **ROOM_IDS} or i in ONE_PER_CLASS
     else pytest.param(i, marks=pytest.mark.slow)
     for i in IDS
 ]  # fmt: skip
@@ -526,13 +557,13 @@ OWN_STEP = [
     "MiniGrid-GoToDoor-5x5-v0",
     "MiniGrid-GoToObject-6x6-N2-v0",
     "MiniGrid-PutNear-6x6-N2-v0",
-    "MiniGrid-RedBlueDoors-6x6-v0",
 ]
 NATIVE_OWN_STEP = {
     "MiniGrid-Unlock-v0": Unlock,
     "MiniGrid-UnlockPickup-v0": UnlockPickup,
     "MiniGrid-BlockedUnlockPickup-v0": BlockedUnlockPickup,
     "MiniGrid-KeyCorridorS3R1-v0": KeyCorridor,
+    "MiniGrid-RedBlueDoors-6x6-v0": RedBlueDoors,
 }
 
 
