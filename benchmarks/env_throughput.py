@@ -54,8 +54,6 @@ from jaxgrid.io import write_json
 JAX_LIBS = ("jaxgrid", "navix", "xminigrid")
 ALL_LIBS = (*JAX_LIBS, "minigrid")
 DEFAULT_NUM_ENVS = (1, 256, 4096)
-# MiniGrid's DoorKey time limit is 10 * size**2; NAVIX's make() defaults to 100 instead.
-DOORKEY8_MAX_STEPS = 10 * 8 * 8
 # Env steps per measurement (N * T) when --steps is not given: on a 2-core CPU the JAX
 # peers run at ~1e4 (N=1) to ~5e5 steps/s, so one timed call takes about 0.1-2 s and the
 # default run (9 compiles of 5-12 s each dominate) stays under ~3 minutes.
@@ -83,10 +81,13 @@ class Adapter:
     notes: dict[str, str]
 
 
-def _make_jaxgrid() -> Adapter:
+#: The level every peer ships, measured by default.
+DEFAULT_ENV_ID = "MiniGrid-DoorKey-8x8-v0"
+
+
+def _make_jaxgrid(env_id: str = DEFAULT_ENV_ID) -> Adapter:
     import jaxgrid
 
-    env_id = "MiniGrid-DoorKey-8x8-v0"
     env = jaxgrid.wrappers.AutoReset(jaxgrid.make(env_id))
 
     def step(env_state, action):
@@ -110,12 +111,21 @@ def _make_jaxgrid() -> Adapter:
     )
 
 
-def _make_navix() -> Adapter:
+def navix_id(env_id: str) -> str:
+    """NAVIX's name for a MiniGrid id: ``MiniGrid-X`` is ``Navix-X``."""
+    return "Navix-" + env_id.removeprefix("MiniGrid-")
+
+
+def _make_navix(env_id: str = DEFAULT_ENV_ID) -> Adapter:
     import navix
 
-    env_id = "Navix-DoorKey-8x8-v0"
-    # max_steps=640 matches MiniGrid (navix.make defaults to 100, which would reset more).
-    env = navix.make(env_id, max_steps=DOORKEY8_MAX_STEPS)
+    import jaxgrid
+
+    max_steps = jaxgrid.make(env_id).max_steps  # MiniGrid's (navix.make defaults to 100)
+    env_id = navix_id(env_id)
+    if env_id not in navix.registry():
+        raise ValueError(f"NAVIX has no {env_id}")
+    env = navix.make(env_id, max_steps=max_steps)
     return Adapter(
         lib="navix",
         env_id=env_id,
@@ -133,16 +143,18 @@ def _make_navix() -> Adapter:
             "actions": "uniform over its 7 MiniGrid actions (MINIGRID_ACTION_SET)",
             "layout": "agent start fixed at (1,1) facing east (random_start=False), "
             "unlike MiniGrid; state carries an RGB RenderingCache",
-            "max_steps": f"{DOORKEY8_MAX_STEPS} (passed explicitly; navix.make default is 100)",
+            "max_steps": f"{max_steps} (MiniGrid's, passed explicitly; navix.make's is 100)",
         },
     )
 
 
-def _make_xminigrid() -> Adapter:
+def _make_xminigrid(env_id: str = DEFAULT_ENV_ID) -> Adapter:
     import xminigrid
     from xminigrid.wrappers import GymAutoResetWrapper
 
-    env_id = "MiniGrid-DoorKey-8x8"
+    env_id = env_id.removesuffix("-v0")
+    if env_id not in xminigrid.registered_environments():
+        raise ValueError(f"XLand-MiniGrid has no {env_id}")
     env, params = xminigrid.make(env_id)
     # The bare env does not auto-reset; the Gym-style wrapper resets on the same step,
     # which is what jaxgrid's AutoReset does.
@@ -162,7 +174,7 @@ def _make_xminigrid() -> Adapter:
             "auto_reset": "xminigrid.wrappers.GymAutoResetWrapper (same-step reset via "
             "lax.cond; a select of both branches under vmap); bare env does not reset",
             "actions": "uniform over its 6 actions (it has no 'done' action)",
-            "max_steps": f"{DOORKEY8_MAX_STEPS} (its default, 10 * h * w)",
+            "max_steps": "its default (10 * h * w for DoorKey, as MiniGrid)",
         },
     )
 
@@ -202,23 +214,23 @@ def make_rollout(adapter: Adapter, num_envs: int, steps: int) -> Callable:
 
 
 @functools.cache
-def _adapter(lib: str) -> Adapter:
-    """One adapter per library per process, so compiled resets can be reused across N."""
-    return _ADAPTERS[lib]()
+def _adapter(lib: str, env_id: str = DEFAULT_ENV_ID) -> Adapter:
+    """One adapter per library and level per process, so compiled resets are reused."""
+    return _ADAPTERS[lib](env_id)
 
 
 @functools.cache
-def _jit_vreset(lib: str) -> Callable:
-    return jax.jit(jax.vmap(_adapter(lib).reset))
+def _jit_vreset(lib: str, env_id: str = DEFAULT_ENV_ID) -> Callable:
+    return jax.jit(jax.vmap(_adapter(lib, env_id).reset))
 
 
-def batched_reset(lib: str, key: jax.Array, num_envs: int) -> Any:
+def batched_reset(lib: str, key: jax.Array, num_envs: int, env_id: str = DEFAULT_ENV_ID) -> Any:
     """``vmap(reset)`` over ``num_envs`` keys, in fixed chunks of RESET_CHUNK envs.
 
     A fixed chunk shape compiles the reset once per library instead of once per N (the
     reset compile is several seconds on 2 cores and is not what is being measured).
     """
-    vreset = _jit_vreset(lib)
+    vreset = _jit_vreset(lib, env_id)
     chunks = -(-num_envs // RESET_CHUNK)
     keys = jax.random.split(key, chunks * RESET_CHUNK)
     parts = [vreset(keys[i * RESET_CHUNK : (i + 1) * RESET_CHUNK]) for i in range(chunks)]
@@ -227,12 +239,14 @@ def batched_reset(lib: str, key: jax.Array, num_envs: int) -> Any:
     return jax.tree.map(lambda *xs: jnp.concatenate(xs)[:num_envs], *parts)
 
 
-def _measure_jax(lib: str, num_envs: int, steps: int, repeats: int, seed: int) -> dict:
-    adapter = _adapter(lib)
+def _measure_jax(
+    lib: str, num_envs: int, steps: int, repeats: int, seed: int, env_id: str = DEFAULT_ENV_ID
+) -> dict:
+    adapter = _adapter(lib, env_id)
     key_reset, key_act = jax.random.split(jax.random.PRNGKey(seed))
     # Reset is not part of the measurement: done once, outside the timed region.
     t0 = time.perf_counter()
-    env_state = jax.block_until_ready(batched_reset(lib, key_reset, num_envs))
+    env_state = jax.block_until_ready(batched_reset(lib, key_reset, num_envs, env_id))
     reset_s = time.perf_counter() - t0
 
     timing = measure_compiled(
@@ -257,13 +271,14 @@ def _measure_jax(lib: str, num_envs: int, steps: int, repeats: int, seed: int) -
     }
 
 
-def _measure_minigrid(num_envs: int, steps: int, repeats: int, seed: int) -> dict:
+def _measure_minigrid(
+    num_envs: int, steps: int, repeats: int, seed: int, env_id: str = DEFAULT_ENV_ID
+) -> dict:
     import gymnasium as gym
     import minigrid  # noqa: F401  (registers the MiniGrid-* ids with gymnasium)
 
     if num_envs != 1:
         raise ValueError("minigrid is measured as a single Python env (num_envs=1)")
-    env_id = "MiniGrid-DoorKey-8x8-v0"
     env = gym.make(env_id)
     num_actions = int(env.action_space.n)
     rng = np.random.default_rng(seed)
@@ -304,18 +319,26 @@ def _measure_minigrid(num_envs: int, steps: int, repeats: int, seed: int) -> dic
     }
 
 
-def measure(lib: str, num_envs: int, steps: int, repeats: int = 3, seed: int = 0) -> dict:
-    """Measure one library at one batch size; returns a JSON-serialisable result dict.
+def measure(
+    lib: str,
+    num_envs: int,
+    steps: int,
+    repeats: int = 3,
+    seed: int = 0,
+    env_id: str = DEFAULT_ENV_ID,
+) -> dict:
+    """Measure one library at one batch size on ``env_id`` (a MiniGrid id; each library's
+    own name for it); returns a JSON-serialisable result dict.
 
     ``steps`` is T, the scan length (for ``minigrid``: the Python loop length per repeat).
     Keys include ``steps_per_s`` (best of ``repeats``), ``steps_per_s_median``,
     ``compile_s`` (lower + compile seconds; ``None`` for minigrid) and ``times_s``.
     """
     if lib == "minigrid":
-        return _measure_minigrid(num_envs, steps, repeats, seed)
+        return _measure_minigrid(num_envs, steps, repeats, seed, env_id)
     if lib not in _ADAPTERS:
         raise ValueError(f"unknown lib {lib!r}; choose from {ALL_LIBS}")
-    return _measure_jax(lib, num_envs, steps, repeats, seed)
+    return _measure_jax(lib, num_envs, steps, repeats, seed, env_id)
 
 
 def default_steps(num_envs: int) -> int:
@@ -504,16 +527,30 @@ def _parser() -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("--num-envs", type=int, nargs="+", default=list(DEFAULT_NUM_ENVS),
-                   help="batch sizes N to measure")
-    p.add_argument("--steps", type=int, default=None,
-                   help="scan length T for every N (None: T = budget / N, budgets "
-                   f"{DEFAULT_STEP_BUDGET} env steps)")
+    p.add_argument(
+        "--num-envs",
+        type=int,
+        nargs="+",
+        default=list(DEFAULT_NUM_ENVS),
+        help="batch sizes N to measure",
+    )
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="scan length T for every N (None: T = budget / N, budgets "
+        f"{DEFAULT_STEP_BUDGET} env steps)",
+    )
     p.add_argument("--repeats", type=int, default=3, help="timed calls per measurement")
-    p.add_argument("--libs", nargs="+", default=list(ALL_LIBS), choices=ALL_LIBS,
-                   help="libraries to measure")
-    p.add_argument("--python-steps", type=int, default=DEFAULT_PYTHON_STEPS,
-                   help="Python-loop steps per repeat for Farama minigrid")
+    p.add_argument(
+        "--libs", nargs="+", default=list(ALL_LIBS), choices=ALL_LIBS, help="libraries to measure"
+    )
+    p.add_argument(
+        "--python-steps",
+        type=int,
+        default=DEFAULT_PYTHON_STEPS,
+        help="Python-loop steps per repeat for Farama minigrid",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the resets and actions")
     p.add_argument("--json", metavar="PATH", default=None, help="also write the JSON here")
     return p  # fmt: skip

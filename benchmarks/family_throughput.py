@@ -1,0 +1,91 @@
+"""Env throughput per MiniGrid family: jaxgrid against NAVIX on each family both ship.
+
+The harness of :mod:`benchmarks.env_throughput` (random actions, auto-reset, ``lax.scan`` of
+``vmap(step)``, compile timed apart, best of repeats), on one id per family at one batch size
+(4096 envs by default): Empty, DoorKey, FourRooms, KeyCorridor, LavaGap, SimpleCrossing,
+DistShift and GoToDoor where both libraries have the id. NAVIX runs each level with
+MiniGrid's ``max_steps``. Its observation is the full symbolic grid (no egocentric crop, no
+occlusion), less work per step than jaxgrid's MiniGrid view; the ratio is quoted as measured.
+
+NAVIX needs an older JAX than jaxgrid's default environment; run this module from an
+environment where both import (``pip install navix`` pins its JAX)::
+
+    python -m benchmarks.family_throughput                     # ~10 min on 2 cores
+    python -m benchmarks.family_throughput --num-envs 256 --ids MiniGrid-FourRooms-v0
+    python -m benchmarks.family_throughput --json runs/family_throughput.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from benchmarks import env_throughput as ET
+from jaxgrid.io import write_json
+
+#: One id per family that jaxgrid and NAVIX both ship.
+FAMILY_IDS = (
+    "MiniGrid-Empty-8x8-v0",
+    "MiniGrid-DoorKey-8x8-v0",
+    "MiniGrid-FourRooms-v0",
+    "MiniGrid-KeyCorridorS3R3-v0",
+    "MiniGrid-LavaGapS7-v0",
+    "MiniGrid-SimpleCrossingS9N2-v0",
+    "MiniGrid-DistShift1-v0",
+    "MiniGrid-GoToDoor-8x8-v0",
+)
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--ids", nargs="+", default=list(FAMILY_IDS), help="MiniGrid ids to measure")
+    p.add_argument("--num-envs", type=int, default=4096)
+    p.add_argument("--steps", type=int, help="scan length (default: the harness's budget)")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--json", help="also write the results to this JSON file")
+    args = p.parse_args(argv)
+    missing = ET.check_import("navix")
+    if missing:
+        p.error(f"navix does not import here ({missing}); see the module docstring")
+    steps = args.steps or ET.default_steps(args.num_envs)
+    rows, skipped = [], {}
+    for env_id in args.ids:
+        try:
+            pair = [
+                ET.measure(lib, args.num_envs, steps, args.repeats, env_id=env_id)
+                for lib in ("jaxgrid", "navix")
+            ]
+        except ValueError as exc:  # an id one of them lacks
+            skipped[env_id] = str(exc)
+            print(f"{env_id}: skipped ({exc})", file=sys.stderr)
+            continue
+        ours, theirs = pair
+        row = {
+            "env_id": env_id,
+            "num_envs": args.num_envs,
+            "jaxgrid_steps_per_s": ours["steps_per_s"],
+            "navix_steps_per_s": theirs["steps_per_s"],
+            "ratio": ours["steps_per_s"] / theirs["steps_per_s"],
+            "jaxgrid_compile_s": ours["compile_s"],
+            "navix_compile_s": theirs["compile_s"],
+        }
+        rows.append(row)
+        print(
+            f"{env_id:<34} jaxgrid {ET._fmt_rate(row['jaxgrid_steps_per_s']):>8}/s "
+            f"navix {ET._fmt_rate(row['navix_steps_per_s']):>8}/s  x{row['ratio']:.2f}  "
+            f"compile {row['jaxgrid_compile_s']:.1f} s vs {row['navix_compile_s']:.1f} s",
+            flush=True,
+        )
+    out = {
+        "rows": rows,
+        "skipped": skipped,
+        "machine": ET.machine_info(),
+        "versions": ET.library_versions(),
+    }
+    if args.json:
+        write_json(args.json, out)
+    return out
+
+
+if __name__ == "__main__":
+    main()
