@@ -106,6 +106,9 @@ class PPOConfig:
     eval_seed: int = 20_200_207  # key of the evaluation episodes, shared by every method
     seed: int = 0  # seed of a single run
     conv_channels: tuple[int, ...] = (16,)  # 3x3 convolutions of the view encoder; () for an MLP
+    # a GRU memory in the policy, carried through each episode; updates then take minibatches
+    # of whole env sequences and backpropagate through time (PureJaxRL's ppo_rnn)
+    recurrent: bool = False
 
     def __post_init__(self):
         try:  # a dict or pairs -> sorted pairs, so that the config stays hashable

@@ -27,11 +27,14 @@ def play_episodes(
     key: jax.Array,
     num_episodes: int,
     shield=None,
+    memory=None,
 ) -> dict[str, jax.Array]:
     """Play ``num_episodes`` episodes in parallel with ``act(obs_batch, key) -> actions``.
 
     With a ``shield`` (:class:`agents.shield.Shield`) the actions come from
     ``act(obs_batch, key, allowed)``, ``allowed`` the shield's bool (E, A) mask of the step.
+    With a policy ``memory`` (a pytree, its start value), ``act`` takes it last and returns
+    ``(actions, memory)``; each env plays one episode, so it is never reset.
 
     Layouts come from ``jax.random.split(key, num_episodes)``; action sampling uses keys
     folded from ``key`` too, so a fixed key gives the same episodes for the same policy.
@@ -45,13 +48,18 @@ def play_episodes(
     zeros_f = jnp.zeros((num_episodes,), jnp.float32)
     alive = jnp.ones((num_episodes,), bool)
 
+    stateful = memory is not None
+
     def body(carry, t):
-        (states, memory), obs, alive, ret, viol, length = carry
-        if shield is None:
-            actions = act(obs, jax.random.fold_in(act_key, t))
-        else:
+        (states, memory, policy_memory), obs, alive, ret, viol, length = carry
+        args = (obs, jax.random.fold_in(act_key, t))
+        if shield is not None:
             allowed, _ = shield.allowed_now(memory, states)
-            actions = act(obs, jax.random.fold_in(act_key, t), allowed)
+            args = args + (allowed,)
+        if stateful:
+            actions, policy_memory = act(*args, policy_memory)
+        else:
+            actions = act(*args)
         states, ts = jax.vmap(env.step)(states, actions)
         if shield is not None:
             memory = shield.observe(memory, ts.observation)
@@ -60,10 +68,11 @@ def play_episodes(
         viol = viol + violation_of(ts).astype(jnp.int32) * live
         length = length + live
         alive = alive & ~(ts.terminated | ts.truncated)
-        return ((states, memory), ts.observation, alive, ret, viol, length), None
+        return ((states, memory, policy_memory), ts.observation, alive, ret, viol, length), None
 
+    policy_memory = () if memory is None else memory
     memory = () if shield is None else shield.start(ts.observation)
-    carry = ((states, memory), ts.observation, alive, zeros_f, zeros_i, zeros_i)
+    carry = ((states, memory, policy_memory), ts.observation, alive, zeros_f, zeros_i, zeros_i)
     (_, _, _, ret, viol, length), _ = lax.scan(body, carry, jnp.arange(env.max_steps))
     return {
         "success": ret > 0,

@@ -136,10 +136,16 @@ class ActorCritic(nn.Module):
     hidden: int = 64
     word_dim: int = 32
     gru_dim: int = 128
+    vocab_size: int = language.vocab_size()
+    recurrent: bool = False  # a GRU memory between the observation and the heads
 
     def setup(self):
         relu_init = _ortho(np.sqrt(2))
-        self.sentence = SentenceEncoder(word_dim=self.word_dim, gru_dim=self.gru_dim)
+        self.sentence = SentenceEncoder(
+            vocab_size=self.vocab_size, word_dim=self.word_dim, gru_dim=self.gru_dim
+        )
+        if self.recurrent:
+            self.core = nn.GRUCell(self.hidden, recurrent_kernel_init=_ortho())
         self.lang_proj = nn.Dense(self.lang_dim, use_bias=False, kernel_init=_ortho(0.1))
         self.cells = nn.Dense(self.cell_dim, kernel_init=relu_init)
         self.convs = [PatchConv(c, 3, kernel_init=relu_init) for c in self.conv_channels]
@@ -162,7 +168,22 @@ class ActorCritic(nn.Module):
         """(..., gru_dim) sentence features -> (..., lang_dim) FiLM scales and shifts."""
         return self.lang_proj(features)
 
+    @property
+    def memory_dim(self) -> int:
+        """Width of the recurrent memory (1, a placeholder, without one)."""
+        return self.hidden if self.recurrent else 1
+
     def __call__(self, image, direction, lang):
+        """``(logits, value, cost_value)`` of a memoryless network."""
+        if self.recurrent:
+            raise ValueError("a recurrent ActorCritic is called with step(..., memory)")
+        logits, value, cost_value, _ = self.step(image, direction, lang, None)
+        return logits, value, cost_value
+
+    def step(self, image, direction, lang, memory):
+        """``(logits, value, cost_value, memory)``: one step, from the memory of the episode's
+        previous steps (zeros at its start; (B, :attr:`memory_dim`)). Without recurrence the
+        memory passes through unchanged."""
         cell_film, hidden_film = jnp.split(lang, [2 * self.cell_dim], axis=-1)
         c_scale, c_shift = jnp.split(cell_film[..., None, None, :], 2, axis=-1)
         x = nn.relu(self.cells(one_hot_cells(image)) * (1.0 + c_scale) + c_shift)
@@ -172,8 +193,10 @@ class ActorCritic(nn.Module):
         x = jnp.concatenate([x, jax.nn.one_hot(direction, 4)], axis=-1)
         scale, shift = jnp.split(hidden_film, 2, axis=-1)
         h = jnp.tanh(self.obs_proj(x) * (1.0 + scale) + shift)
+        if self.recurrent:
+            memory, h = self.core(memory, h)
         h = jnp.tanh(self.mix(h))
-        return self.actor(h), self.critic(h)[..., 0], self.cost_critic(h)[..., 0]
+        return self.actor(h), self.critic(h)[..., 0], self.cost_critic(h)[..., 0], memory
 
     def sentence_features(self, tokens: jax.Array) -> jax.Array:
         """Tokens -> the ``lang`` input of :meth:`__call__` (GRU, then projection)."""
@@ -181,7 +204,8 @@ class ActorCritic(nn.Module):
 
     def init_all(self, image, direction, tokens):
         """Initialisation path touching every submodule (use as ``method=`` in ``init``)."""
-        return self(image, direction, self.sentence_features(tokens))
+        memory = jnp.zeros(image.shape[:1] + (self.memory_dim,), jnp.float32)
+        return self.step(image, direction, self.sentence_features(tokens), memory)
 
 
 def table_features(network: ActorCritic, params, tokens: jax.Array | None) -> jax.Array:
@@ -195,11 +219,17 @@ def table_features(network: ActorCritic, params, tokens: jax.Array | None) -> ja
     return network.apply(params, tokens, method=ActorCritic.sentence_features)
 
 
-def apply_policy(network: ActorCritic, params, lang_table, image, direction, sentence):
-    """``network`` on a batch whose sentences are rows ``sentence`` (B,) of ``lang_table``.
+def apply_policy(network: ActorCritic, params, lang_table, image, direction, sentence, memory):
+    """``network.step`` on a batch whose sentences are rows ``sentence`` (B,) of
+    ``lang_table``: ``(logits, value, cost_value, memory)``.
 
     The row is selected by a one-hot matmul rather than a gather: its gradient is a matmul,
     not a scatter (slow on CPU).
     """
     lang = jax.nn.one_hot(sentence, lang_table.shape[0], dtype=lang_table.dtype) @ lang_table
-    return network.apply(params, image, direction, lang)
+    return network.apply(params, image, direction, lang, memory, method=ActorCritic.step)
+
+
+def start_memory(network: ActorCritic, batch: int) -> jax.Array:
+    """float32 (batch, memory_dim) zeros: the memory at an episode's start."""
+    return jnp.zeros((batch, network.memory_dim), jnp.float32)

@@ -36,6 +36,9 @@ class EnvCarry(struct.PyTreeNode):
     ep_return: jax.Array
     ep_length: jax.Array
     alarmed: jax.Array  # bool (E,): the checker alarmed at the episode's previous step
+    # float32 (E, M): the policy's memory of the episode so far (zeros at its start; M = 1,
+    # a placeholder, for a memoryless policy)
+    memory: jax.Array = None
 
 
 class Transition(struct.PyTreeNode):
@@ -52,8 +55,9 @@ class Transition(struct.PyTreeNode):
     allowed: jax.Array | None = None  # bool (E, A): the shield's mask (shield modes only)
 
 
-# (image, direction, sentence row) -> (logits, value, cost_value), parameters bound.
-BoundPolicy = Callable[[jax.Array, jax.Array, jax.Array], tuple[jax.Array, jax.Array, jax.Array]]
+# (image, direction, sentence row, memory) -> (logits, value, cost_value, memory), parameters
+# bound (agents.networks.apply_policy).
+BoundPolicy = Callable[..., tuple[jax.Array, jax.Array, jax.Array, jax.Array]]
 
 
 def sentence_rows(obs: dict, table: jax.Array) -> jax.Array:
@@ -135,7 +139,9 @@ def env_step(
     """
     c = config
     obs = carry.obs
-    logits, value, cost_value = policy(obs["image"], obs["direction"], carry.sentence)
+    logits, value, cost_value, memory = policy(
+        obs["image"], obs["direction"], carry.sentence, carry.memory
+    )
     # The checker's sentence codes: the table is encoded once (XLA hoists it out of the scan).
     lang = None if checker is None else checker.encode_language(table[:, :words])[carry.sentence]
     allowed, blocked = None, jnp.zeros(logits.shape[:1])
@@ -194,11 +200,11 @@ def env_step(
     truncated = ts.truncated & ~ts.terminated
 
     def final_values(rows):
-        _, v, cv = policy(*rows)
+        _, v, cv, _ = policy(*rows)
         return v, cv
 
     zeros = jnp.zeros_like(value)
-    rows = (final["image"], final["direction"], carry.sentence)
+    rows = (final["image"], final["direction"], carry.sentence, memory)
     v_final, cv_final = masked_map(truncated, final_values, rows, (zeros, zeros))
     trunc = truncated.astype(jnp.float32)
     transition = Transition(
@@ -226,6 +232,6 @@ def env_step(
     carry = EnvCarry(
         state=states, obs=ts.observation, sentence=sentence, frames=frames, visited=visited,
         ep_return=jnp.where(done, 0.0, ep_return), ep_length=jnp.where(done, 0, ep_length),
-        alarmed=(alarm > 0) & ~done,
+        alarmed=(alarm > 0) & ~done, memory=jnp.where(done[:, None], 0.0, memory),
     )  # fmt: skip
     return carry, (transition, stats)

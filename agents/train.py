@@ -33,7 +33,7 @@ from agents import rollout
 from agents.config import SWEEPABLE, PPOConfig, check_checker
 from agents.evaluation import play_episodes, summarise
 from agents.losses import gae, ppo_loss, shuffle
-from agents.networks import ActorCritic, apply_policy, table_features
+from agents.networks import ActorCritic, apply_policy, start_memory, table_features
 from agents.rollout import EnvCarry, Transition
 from agents.shield import make_shield, mask_logits
 from jaxgrid import language
@@ -85,9 +85,33 @@ class Learner(struct.PyTreeNode):
         return table_features(self.network, params, tokens)
 
     def policy(self, params, lang_table=None):
-        """The policy ``(image, direction, sentence row) -> (logits, value, cost_value)``."""
+        """The policy ``(image, direction, sentence row, memory) -> (logits, value,
+        cost_value, memory)`` (:func:`agents.networks.apply_policy`)."""
         lang_table = self.lang_table(params) if lang_table is None else lang_table
         return functools.partial(apply_policy, self.network, params, lang_table)
+
+    def forward(self, params, mb: dict):
+        """``(logits, value, cost_value)`` of a training minibatch, flat (B, ...).
+
+        Memoryless: every sample on its own. Recurrent: ``mb`` holds (T, E_mb) sequences,
+        ``memory0`` (E_mb, M) the memory before their first step and ``start`` (T, E_mb) the
+        steps that begin an episode (memory reset); the memory is recomputed through time,
+        so gradients reach the steps that wrote it.
+        """
+        step = self.policy(params)
+        if not self.config.recurrent:
+            memory = start_memory(self.network, mb["image"].shape[0])
+            return step(mb["image"], mb["direction"], mb["sentence"], memory)[:3]
+
+        def one(memory, x):
+            image, direction, sentence, start = x
+            memory = jnp.where(start[:, None], 0.0, memory)
+            logits, value, cost_value, memory = step(image, direction, sentence, memory)
+            return memory, (logits, value, cost_value)
+
+        xs = (mb["image"], mb["direction"], mb["sentence"], mb["start"])
+        _, out = lax.scan(one, mb["memory0"], xs)
+        return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out)
 
     def constraint_ramp(self, update: jax.Array) -> jax.Array:
         """How far the constraint is switched on at update ``update`` (0-based): 0 for the
@@ -148,6 +172,7 @@ class Learner(struct.PyTreeNode):
             frames=frames, visited=rollout.visits(states, env.width, env.height,
                                                   c.novelty_bonus != 0),
             ep_return=zeros, ep_length=zeros.astype(jnp.int32), alarmed=zeros > 0,
+            memory=start_memory(self.network, c.num_envs),
         )  # fmt: skip
         return RunnerState(
             params=params,
@@ -184,10 +209,10 @@ class Learner(struct.PyTreeNode):
         params = runner.params
         lang_table = self.lang_table(params)
         env, traj, stats = self.rollout(runner, rollout_key, lang_table)
-        _, last_value, last_cost_value = self.policy(params, lang_table)(
-            env.obs["image"], env.obs["direction"], env.sentence
+        _, last_value, last_cost_value, _ = self.policy(params, lang_table)(
+            env.obs["image"], env.obs["direction"], env.sentence, env.memory
         )
-        batch = self.training_batch(traj, last_value, last_cost_value)
+        batch = self.training_batch(traj, last_value, last_cost_value, runner.env.memory)
         penalty = self.penalty_at(runner.update, self.hparam(runner, "penalty"))
         blocked_weight = penalty if self.shield is not None else 0.0
         ent_coef = self.hparam(runner, "ent_coef")
@@ -195,15 +220,16 @@ class Learner(struct.PyTreeNode):
         lr_scale = runner.hparams["lr"] / c.lr if "lr" in runner.hparams else None
 
         def loss(params, mb, lagrange):
-            policy = lambda p, *x: self.policy(p)(*x)
-            return ppo_loss(policy, params, mb, lagrange, c, blocked_weight, ent_coef)
+            out = self.forward(params, mb)
+            flat = {k: v for k, v in mb.items() if k not in ("memory0", "start")}
+            if c.recurrent:
+                flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), flat)
+            policy = lambda p, *x: out  # noqa: E731  (computed from ``params`` above)
+            return ppo_loss(policy, params, flat, lagrange, c, blocked_weight, ent_coef)
 
         def epoch(carry, k):
             params, opt_state = carry
-            perm = shuffle(k, c.batch_size)
-            shuffled = jax.tree.map(
-                lambda x: x[perm].reshape((c.num_minibatches, -1) + x.shape[1:]), batch
-            )
+            shuffled = self.minibatches(batch, k)
 
             def minibatch(carry, mb):
                 params, opt_state = carry
@@ -225,8 +251,30 @@ class Learner(struct.PyTreeNode):
         )  # fmt: skip
         return runner, metrics
 
-    def training_batch(self, traj: Transition, last_value, last_cost_value) -> dict:
-        """The flat (T * E, ...) training batch: transitions, advantages and targets."""
+    def minibatches(self, batch: dict, key: jax.Array) -> dict:
+        """``batch`` shuffled and split into ``num_minibatches`` (leading axis): samples
+        (memoryless), or whole env sequences (recurrent: (nm, T, E / nm, ...))."""
+        c = self.config
+        if not c.recurrent:
+            perm = shuffle(key, c.batch_size)
+            return jax.tree.map(
+                lambda x: x[perm].reshape((c.num_minibatches, -1) + x.shape[1:]), batch
+            )
+        perm = shuffle(key, c.num_envs)
+        nm = c.num_minibatches
+
+        def split(x):
+            x = x[:, perm].reshape((x.shape[0], nm, -1) + x.shape[2:])
+            return jnp.moveaxis(x, 1, 0)
+
+        out = {k: split(v) for k, v in batch.items() if k != "memory0"}
+        out["memory0"] = batch["memory0"][perm].reshape((nm, -1) + batch["memory0"].shape[1:])
+        return out
+
+    def training_batch(self, traj: Transition, last_value, last_cost_value, memory0=None) -> dict:
+        """The training batch: transitions, advantages and targets, flat (T * E, ...); for a
+        recurrent policy (T, E, ...) sequences with ``start`` flags and the memory
+        ``memory0`` (E, M) the rollout began with."""
         c = self.config
         adv, target = gae(traj.value, traj.reward, traj.done, last_value, c.gamma, c.gae_lambda)
         batch = {
@@ -241,6 +289,11 @@ class Learner(struct.PyTreeNode):
                 traj.cost_value, traj.cost, traj.done, last_cost_value, c.gamma, c.gae_lambda
             )
             batch.update(cost_value=traj.cost_value, cost_advantage=cadv, cost_target=ctarget)
+        if c.recurrent:
+            # A step begins an episode where the previous one ended; step 0 continues the
+            # memory the rollout began with.
+            start = jnp.concatenate([jnp.zeros_like(traj.done[:1]), traj.done[:-1]])
+            return {**batch, "start": start, "memory0": memory0}
         return jax.tree.map(lambda x: x.reshape((c.batch_size,) + x.shape[2:]), batch)
 
     def _statistics(self, runner: RunnerState, info: dict, stats: dict):
@@ -270,18 +323,30 @@ class Learner(struct.PyTreeNode):
         return lagrange, metrics
 
     # -- evaluation ---------------------------------------------------------------------
-    def act(self, params, obs, key, allowed=None):
+    def act(self, params, obs, key, allowed=None, memory=None):
         """Sample actions for a batch of observations (any sentence: the GRU runs on it),
-        among the ``allowed`` ones (bool (B, A)) when given."""
+        among the ``allowed`` ones (bool (B, A)) when given.
+
+        A recurrent policy needs ``memory`` (B, M) (zeros at an episode's start,
+        :func:`agents.networks.start_memory`) and returns ``(actions, memory)``.
+        """
+        if self.config.recurrent and memory is None:
+            raise ValueError("a recurrent policy acts with its memory: act(..., memory=...)")
         tokens = obs.get("constraint")
+        batch = obs["direction"].shape[0]
         if tokens is None:
-            lang = jnp.zeros((obs["direction"].shape[0], self.network.lang_dim), jnp.float32)
+            lang = jnp.zeros((batch, self.network.lang_dim), jnp.float32)
         else:
             lang = self.network.apply(params, tokens, method=ActorCritic.sentence_features)
-        logits, _, _ = self.network.apply(params, obs["image"], obs["direction"], lang)
+        given = memory is not None
+        memory = start_memory(self.network, batch) if memory is None else memory
+        logits, _, _, memory = self.network.apply(
+            params, obs["image"], obs["direction"], lang, memory, method=ActorCritic.step
+        )
         if allowed is not None:
             logits = mask_logits(logits, allowed)
-        return jax.random.categorical(key, logits)
+        actions = jax.random.categorical(key, logits)
+        return (actions, memory) if given else actions
 
     def evaluate(
         self, params, key, num_episodes: int, env=None, shielded: bool = True, hparams=None
@@ -291,11 +356,13 @@ class Learner(struct.PyTreeNode):
         (as deployed; at the agent's swept threshold in ``hparams``, if any) unless
         ``shielded`` is False (the policy alone)."""
         env = self.env if env is None else env
+        memory = start_memory(self.network, num_episodes) if self.config.recurrent else None
         if self.shield is None or not shielded:
-            return play_episodes(env, lambda o, k: self.act(params, o, k), key, num_episodes)
+            act = lambda o, k, *m: self.act(params, o, k, None, *m)  # noqa: E731
+            return play_episodes(env, act, key, num_episodes, memory=memory)
         shield = self.shield_for(hparams or {}).replace(env=env)
-        act = lambda o, k, allowed: self.act(params, o, k, allowed)  # noqa: E731
-        return play_episodes(env, act, key, num_episodes, shield=shield)
+        act = lambda o, k, allowed, *m: self.act(params, o, k, allowed, *m)  # noqa: E731
+        return play_episodes(env, act, key, num_episodes, shield=shield, memory=memory)
 
     def chunk(self, runner: RunnerState):
         """``eval_every`` updates, then evaluation on the fixed evaluation seeds."""
@@ -313,6 +380,12 @@ class Learner(struct.PyTreeNode):
 def make_learner(config: PPOConfig, checker=None) -> Learner:
     """Validate ``config`` (and ``checker``) and build the run's :class:`Learner`."""
     env = config.make_env()
+    if not getattr(env, "every_sentence_in_table", True):
+        raise ValueError(
+            f"{config.env_id}: the learner encodes the env's table of sentences once per "
+            "minibatch, and this env also says sentences outside it (conjunctions drawn at "
+            "reset); give it a fixed list, e.g. env_kwargs=(('sentences', (...)),)"
+        )
     check_checker(config, checker, env)
     if not config.uses_checker:
         checker = None  # not needed: skip its cost
@@ -333,7 +406,12 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
     return Learner(
         config=config,
         env=env,
-        network=ActorCritic(num_actions=env.num_actions, conv_channels=config.conv_channels),
+        network=ActorCritic(
+            num_actions=env.num_actions,
+            conv_channels=config.conv_channels,
+            vocab_size=getattr(env, "language", language).vocab_size(),
+            recurrent=config.recurrent,
+        ),
         optimizer=optimizer,
         checker=checker,
         shield=shield,

@@ -237,7 +237,6 @@ def _loss_forward_fn(learner):
 
     c = learner.config
     size = c.batch_size // c.num_minibatches
-    policy = lambda params, *x: learner.policy(params)(*x)  # noqa: E731
 
     def run(runner):
         obs = runner.env.obs
@@ -254,6 +253,7 @@ def _loss_forward_fn(learner):
         def body(total, i):
             start = (i % c.num_minibatches) * size
             mb = jax.tree.map(lambda x: lax.dynamic_slice_in_dim(x, start, size), batch)
+            policy = lambda params, *x: learner.forward(params, mb)  # noqa: E731
             loss, _ = ppo_loss(policy, runner.params, mb, runner.lagrange, c)
             return total + loss, None
 

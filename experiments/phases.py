@@ -21,6 +21,7 @@ import numpy as np
 import checker as chk
 import jaxgrid
 from agents.config import PPOConfig
+from agents.networks import start_memory
 from agents.runner import ResumeError
 from agents.runner import run as run_ppo
 from agents.train import make_learner
@@ -108,6 +109,7 @@ def behaviour_config(cfg) -> PPOConfig:
     return _evaluated(cfg, dataclasses.replace(
         ppo, env_id=cfg.checker_env_id, reward_mode="none",
         total_timesteps=max(cfg.behaviour_steps, ppo.batch_size),
+        recurrent=False,  # it only collects the checker's data, one action at a time
     ))  # fmt: skip
 
 
@@ -302,11 +304,22 @@ def write_gif(cfg, out: Path, runs: dict, trained) -> Path | None:
     config = runs[mode]["config"]
     learner = make_learner(config, trained if config.uses_checker else None)
     params = jax.tree.map(lambda x: x[0], runs[mode]["params"])
-    act = jax.jit(lambda obs, key: learner.act(params, jax.tree.map(lambda x: x[None], obs),
-                                               key)[0])  # fmt: skip
+    batch = lambda obs: jax.tree.map(lambda x: x[None], obs)  # noqa: E731
+    if config.recurrent:  # the memory lives here, reset where an episode starts
+        step = jax.jit(lambda obs, key, m: learner.act(params, batch(obs), key, None, m))
+        memory = [None]
+
+        def policy(obs, state, key):
+            if int(state.step_count) == 0:
+                memory[0] = start_memory(learner.network, 1)
+            action, memory[0] = step(obs, key, memory[0])
+            return action[0]
+    else:
+        act = jax.jit(lambda obs, key: learner.act(params, batch(obs), key)[0])
+        policy = lambda obs, state, key: act(obs, key)  # noqa: E731
     path = out / "episodes.gif"
-    record_episodes(learner.env, lambda obs, state, key: act(obs, key),
-                    jax.random.PRNGKey(cfg.seed + 7), cfg.gif_episodes, path)  # fmt: skip
+    record_episodes(learner.env, policy, jax.random.PRNGKey(cfg.seed + 7), cfg.gif_episodes,
+                    path)  # fmt: skip
     return path
 
 

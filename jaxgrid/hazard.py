@@ -230,6 +230,12 @@ class HazardRooms(Environment):
         # Every room interior at least 3x3: room for a strip and a cell beside each door.
         return 9, 9, "four rooms of at least 3x3 cells (a hazard strip is 3 cells long)"
 
+    @property
+    def every_sentence_in_table(self) -> bool:
+        """Whether :meth:`constraint_table` lists every sentence an episode can say: only with
+        ``sentences``; drawn conjunctions join two of its rows at reset."""
+        return self.sentences is not None
+
     def constraint_table(self) -> dict:
         """The numeric table constraints are drawn from (see :func:`_rows_to_arrays`)."""
         if self.sentences is not None:

@@ -155,9 +155,7 @@ def test_checker_embeds_only_the_masked_rows_with_the_same_bits(tiny_checker):
     sparse = fast_jit(functools.partial(masked_map, fn=embed))
     for m, i, o in zip(masks, images, other, strict=True):
         np.testing.assert_array_equal(sparse(m, inputs=i, other=o), dense(m, i, o))
-    batched = fast_jit(jax.vmap(lambda m, i, o: masked_map(m, embed, i, o)))(
-        masks, images, other
-    )
+    batched = fast_jit(jax.vmap(lambda m, i, o: masked_map(m, embed, i, o)))(masks, images, other)
     np.testing.assert_array_equal(batched, jax.vmap(dense)(masks, images, other))
 
 
@@ -231,7 +229,7 @@ def test_terminal_step_on_the_time_limit_is_not_bootstrapped():
             state, ts = jax.vmap(auto.step)(state, action)
             final = ts.info["final_observation"]
             sentence = jnp.zeros(action.shape, jnp.int32)
-            _, v, _ = policy(final["image"], final["direction"], sentence)
+            _, v, _, _ = policy(final["image"], final["direction"], sentence, runner.env.memory)
             return state, (ts.reward, ts.terminated, ts.truncated, v)
 
         return lax.scan(step, runner.env.state, actions)[1]
@@ -245,7 +243,6 @@ def test_terminal_step_on_the_time_limit_is_not_bootstrapped():
     np.testing.assert_allclose(
         tr.reward[only], reward[only] + config.gamma * v_final[only], rtol=1e-5, atol=1e-6
     )
-
 
 
 def test_alarm_onset_penalises_only_the_step_that_raises_the_alarm(rollouts, tiny_checker):

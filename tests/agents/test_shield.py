@@ -111,8 +111,9 @@ def test_monitor_shield_lets_no_violation_through():
     def random_act(obs, key, allowed=None):
         logits = jnp.zeros((obs["direction"].shape[0], env.num_actions))
         logits = logits.at[:, 2].set(2.0)  # mostly forward: into lava when it is ahead
-        return jax.random.categorical(key, logits if allowed is None else mask_logits(logits,
-                                                                                      allowed))
+        return jax.random.categorical(
+            key, logits if allowed is None else mask_logits(logits, allowed)
+        )
 
     key = jax.random.PRNGKey(0)
     off = fast_jit(lambda k: play_episodes(env, random_act, k, 64))(key)
@@ -131,9 +132,10 @@ def monitor_rollout():
         runner = learner.init(key)
         lang = learner.lang_table(runner.params)
         _, traj, stats = learner.rollout(runner, key, lang)
-        _, last_value, last_cost = learner.policy(runner.params, lang)(
-            runner.env.obs["image"], runner.env.obs["direction"], runner.env.sentence
-        )
+        _, last_value, last_cost, _ = learner.policy(runner.params, lang)(
+            runner.env.obs["image"], runner.env.obs["direction"], runner.env.sentence,
+            runner.env.memory,
+        )  # fmt: skip
         batch = learner.training_batch(traj, last_value, last_cost)
         return runner, traj, stats, batch
 
@@ -155,7 +157,7 @@ def test_ppo_ratio_uses_the_mask_the_policy_acted_with(monitor_rollout):
     assert (~np.asarray(traj.allowed)).any()  # the shield did block something
 
     def loss(b):
-        policy = lambda p, *x: learner.policy(p)(*x)  # noqa: E731
+        policy = lambda p, *x: learner.forward(p, b)  # noqa: E731
         return ppo_loss(policy, runner.params, b, runner.lagrange, learner.config, 1.0)[1]
 
     with_mask = fast_jit(loss)(batch)
