@@ -184,6 +184,11 @@ class ActorCritic(nn.Module):
         """``(logits, value, cost_value, memory)``: one step, from the memory of the episode's
         previous steps (zeros at its start; (B, :attr:`memory_dim`)). Without recurrence the
         memory passes through unchanged."""
+        return self.heads(self.observe(image, direction, lang), memory)
+
+    def observe(self, image, direction, lang):
+        """The sentence-modulated observation features (B, hidden): everything before the
+        memory, so a recurrent update computes it for a whole sequence at once."""
         cell_film, hidden_film = jnp.split(lang, [2 * self.cell_dim], axis=-1)
         c_scale, c_shift = jnp.split(cell_film[..., None, None, :], 2, axis=-1)
         x = nn.relu(self.cells(one_hot_cells(image)) * (1.0 + c_scale) + c_shift)
@@ -192,7 +197,10 @@ class ActorCritic(nn.Module):
         x = x.reshape(x.shape[:-3] + (-1,))
         x = jnp.concatenate([x, jax.nn.one_hot(direction, 4)], axis=-1)
         scale, shift = jnp.split(hidden_film, 2, axis=-1)
-        h = jnp.tanh(self.obs_proj(x) * (1.0 + scale) + shift)
+        return jnp.tanh(self.obs_proj(x) * (1.0 + scale) + shift)
+
+    def heads(self, h, memory):
+        """``(logits, value, cost_value, memory)`` from :meth:`observe`'s features."""
         if self.recurrent:
             memory, h = self.core(memory, h)
         h = jnp.tanh(self.mix(h))

@@ -98,20 +98,30 @@ class Learner(struct.PyTreeNode):
         steps that begin an episode (memory reset); the memory is recomputed through time,
         so gradients reach the steps that wrote it.
         """
-        step = self.policy(params)
         if not self.config.recurrent:
             memory = start_memory(self.network, mb["image"].shape[0])
-            return step(mb["image"], mb["direction"], mb["sentence"], memory)[:3]
+            return self.policy(params)(mb["image"], mb["direction"], mb["sentence"], memory)[:3]
+        # The observation features of every step at once (one batched pass); only the memory
+        # and the heads run step by step.
+        lang_table = self.lang_table(params)
+        flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
+        rows = flat(mb["sentence"])
+        lang = jax.nn.one_hot(rows, lang_table.shape[0], dtype=lang_table.dtype) @ lang_table
+        net = self.network
+        feats = net.apply(
+            params, flat(mb["image"]), flat(mb["direction"]), lang, method=ActorCritic.observe
+        ).reshape(mb["sentence"].shape + (-1,))
 
         def one(memory, x):
-            image, direction, sentence, start = x
+            h, start = x
             memory = jnp.where(start[:, None], 0.0, memory)
-            logits, value, cost_value, memory = step(image, direction, sentence, memory)
+            logits, value, cost_value, memory = net.apply(
+                params, h, memory, method=ActorCritic.heads
+            )
             return memory, (logits, value, cost_value)
 
-        xs = (mb["image"], mb["direction"], mb["sentence"], mb["start"])
-        _, out = lax.scan(one, mb["memory0"], xs)
-        return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out)
+        _, out = lax.scan(one, mb["memory0"], (feats, mb["start"]))
+        return jax.tree.map(flat, out)
 
     def constraint_ramp(self, update: jax.Array) -> jax.Array:
         """How far the constraint is switched on at update ``update`` (0-based): 0 for the
