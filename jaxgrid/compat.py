@@ -8,7 +8,7 @@ import numpy as np
 
 from jaxgrid.constants import COLOR_TO_IDX, EMPTY_CELL, OBJECT_TO_IDX
 from jaxgrid.environment import Environment
-from jaxgrid.levels import keys, rooms
+from jaxgrid.levels import keys, missions, rooms
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.types import State, TimeStep
 
@@ -48,13 +48,17 @@ def from_minigrid(
     ``state.extras``), and ``env.reset`` draws fresh layouts of the family, as MiniGrid's would.
     ``RedBlueDoorEnv`` (this exact class) likewise converts to
     :class:`~jaxgrid.levels.rooms.RedBlueDoors`, with the cells of ``mg_env.red_door`` and
-    ``mg_env.blue_door`` in ``state.extras``.
+    ``mg_env.blue_door`` in ``state.extras``. ``GoToDoorEnv``, ``GoToObjectEnv``, ``FetchEnv``
+    and ``PutNearEnv`` (these exact classes) convert to their native levels
+    (:mod:`jaxgrid.levels.missions`), with the attributes their ``step`` reads in
+    ``state.extras``: ``target_pos`` and the target's colour (and type), Fetch's
+    ``targetType``/``targetColor``, PutNear's object to move and ``target_pos``.
 
-    Any other class that overrides ``step`` (DynamicObstacles moves its balls, Memory, Fetch,
+    Any other class that overrides ``step`` (DynamicObstacles moves its balls, Memory,
     subclasses of the families above, ...) has rules of its own that are not reproduced, so it
     raises ``ValueError`` naming the class, unless ``base_step=True`` asks for its layout under
     ``MiniGridEnv.step``'s rules alone; ``base_step=True`` gives that ``FixedLevel`` for the
-    five families too. An env that is not a MiniGrid env raises too.
+    nine families too. An env that is not a MiniGrid env raises too.
     """
     from minigrid.minigrid_env import MiniGridEnv  # minigrid is needed here only
 
@@ -102,7 +106,11 @@ def _native_family(env):
     """The native level class for ``env``'s family, or None (see :func:`from_minigrid`)."""
     from minigrid.envs import (
         BlockedUnlockPickupEnv,
+        FetchEnv,
+        GoToDoorEnv,
+        GoToObjectEnv,
         KeyCorridorEnv,
+        PutNearEnv,
         RedBlueDoorEnv,
         UnlockEnv,
         UnlockPickupEnv,
@@ -114,6 +122,10 @@ def _native_family(env):
         BlockedUnlockPickupEnv: keys.BlockedUnlockPickup,
         KeyCorridorEnv: keys.KeyCorridor,
         RedBlueDoorEnv: rooms.RedBlueDoors,
+        GoToDoorEnv: missions.GoToDoor,
+        GoToObjectEnv: missions.GoToObject,
+        FetchEnv: missions.Fetch,
+        PutNearEnv: missions.PutNear,
     }
     native = families.get(type(env))
     if native is keys.KeyCorridor and env.obj_type != "ball":
@@ -144,9 +156,43 @@ def _cell_of(env, obj, name: str) -> tuple[int, int]:
     raise ValueError(f"{type(env).__name__}.{name} is not in its grid")
 
 
+def _first_cell_holding(env, kind: str, colour: str) -> tuple[int, int]:
+    """The first cell of ``env``'s grid (MiniGrid's order) holding an object of ``kind`` and
+    ``colour``; ``(-1, -1)`` if none does."""
+    for index, held in enumerate(env.grid.grid):
+        if held is not None and (held.type, held.color) == (kind, colour):
+            return index % env.grid.width, index // env.grid.width  # grid[j * width + i]
+    return -1, -1
+
+
+def _mission_extras(env, native):
+    """``state.extras`` of a mission level: what ``env.step`` reads, as its native level's."""
+
+    def about(kind: str, colour: str, where) -> keys.Mission:
+        return keys.mission(OBJECT_TO_IDX[kind], COLOR_TO_IDX[colour], tuple(where))
+
+    if native is missions.GoToDoor:
+        return about("door", env.target_color, env.target_pos)
+    if native is missions.GoToObject:
+        return about(env.targetType, env.target_color, env.target_pos)
+    if native is missions.Fetch:  # FetchEnv keeps the target's type and colour only
+        where = _first_cell_holding(env, env.targetType, env.targetColor)
+        return about(env.targetType, env.targetColor, where)
+    return missions.PutNearMission(
+        move=about(env.move_type, env.moveColor, env.move_pos),
+        target=about(env.target_type, env.target_color, env.target_pos),
+    )
+
+
 def _convert_native(env, native, grid, carrying, pos, key):
     """``(native env, state, timestep)`` continuing ``env``'s episode under its own rules."""
-    if native is rooms.RedBlueDoors:
+    if native is missions.GoToDoor:
+        jenv = native(**_settings(env))
+        extras = _mission_extras(env, native)
+    elif native in (missions.GoToObject, missions.Fetch, missions.PutNear):
+        jenv = native(**_settings(env), num_objs=int(env.numObjs))
+        extras = _mission_extras(env, native)
+    elif native is rooms.RedBlueDoors:
         jenv = native(**_settings(env))
         extras = rooms.DoorPair(
             red=jnp.asarray(_cell_of(env, env.red_door, "red_door"), jnp.int32),

@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 from jaxgrid.environment import Environment
 from jaxgrid.hazard import HazardRooms
-from jaxgrid.levels import DoorKey, Empty, LavaGap, keys, navigation, rooms
+from jaxgrid.levels import DoorKey, Empty, LavaGap, keys, missions, navigation, rooms
 from jaxgrid.scenarios import ThreeRoomsKey, TwoRooms
 
 
@@ -52,6 +52,7 @@ _BUILTIN: dict[str, Callable[[], Environment]] = {
     **navigation.IDS,
     **keys.IDS,
     **rooms.IDS,
+    **missions.IDS,
     **_scenarios(),
 }
 _USER: dict[str, Callable[[], Environment]] = {}

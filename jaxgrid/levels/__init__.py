@@ -3,6 +3,7 @@
 from jaxgrid.levels.classic import DoorKey, Empty, LavaGap
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.levels.keys import BlockedUnlockPickup, KeyCorridor, Unlock, UnlockPickup
+from jaxgrid.levels.missions import Fetch, GoToDoor, GoToObject, PutNear
 from jaxgrid.levels.navigation import Crossing, DistShift, FourRooms
 from jaxgrid.levels.rooms import LockedRoom, MultiRoom, RedBlueDoors
 
@@ -12,12 +13,16 @@ __all__ = [
     "DistShift",
     "DoorKey",
     "Empty",
+    "Fetch",
     "FixedLevel",
     "FourRooms",
+    "GoToDoor",
+    "GoToObject",
     "KeyCorridor",
     "LavaGap",
     "LockedRoom",
     "MultiRoom",
+    "PutNear",
     "RedBlueDoors",
     "Unlock",
     "UnlockPickup",

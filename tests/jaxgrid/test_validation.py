@@ -8,12 +8,14 @@ raise clear errors before any compile, and every legal world is well formed and 
   places (bounded where the layout decides them). The oracle solves every episode of the levels
   won by reaching the goal without a violation; those with their own success rule (Unlock,
   UnlockPickup, BlockedUnlockPickup, KeyCorridor) are solvable by reachability: the key, then
-  the locked door, then the target, which the locked door shuts away.
+  the locked door, then the target, which the locked door shuts away; so are GoToDoor,
+  GoToObject, Fetch and PutNear (next to the target; its object faced, then a cell near the
+  target).
 * Actions and keys: concrete bad values raise ``TypeError``/``ValueError``; traced values are
   untouched (out-of-range actions still act as ``done``, ``jit`` compiles once, ``vmap`` works).
 * gymnasium: actions are checked against the action space; ``render()`` without a mode warns.
 * ``from_minigrid``: levels with their own ``step`` and non-MiniGrid envs are refused, except
-  the five families with a native level of their own rules, which convert to it.
+  the families with a native level of their own rules, which convert to it.
 """
 
 from __future__ import annotations
@@ -36,15 +38,21 @@ from jaxgrid.compat import from_minigrid
 from jaxgrid.constants import BALL, BOX, DONE, DOOR, EMPTY, FLOOR, GOAL, KEY, LAVA, LOCKED, WALL
 from jaxgrid.levels import (
     BlockedUnlockPickup,
+    Fetch,
     FixedLevel,
+    GoToDoor,
+    GoToObject,
     KeyCorridor,
     MultiRoom,
+    PutNear,
     RedBlueDoors,
     Unlock,
     UnlockPickup,
 )
 from jaxgrid.levels.keys import IDS as KEY_IDS
 from jaxgrid.levels.keys import RoomLevel, roomgrid_size
+from jaxgrid.levels.missions import IDS as MISSION_IDS
+from jaxgrid.levels.missions import MissionLevel
 from jaxgrid.levels.navigation import IDS as NAVIGATION_IDS
 from jaxgrid.levels.rooms import IDS as ROOM_IDS
 from jaxgrid.oracle import rollout_oracle
@@ -142,6 +150,10 @@ def _expected(env) -> dict[str, int | range | None]:
         counts.update(door=6, key=1)
     elif name == "RedBlueDoors":  # no goal: success is opening the blue door after the red
         counts.update(goal=0, door=2)
+    elif name == "GoToDoor":  # no goal: success is done next to the target door
+        counts.update(goal=0, door=4)
+    elif isinstance(env, MissionLevel):  # num_objs objects: _check_structure counts them
+        counts.update(goal=0, key=None, ball=None, box=0 if name == "Fetch" else None)
     else:
         assert name in ("Empty", "FourRooms"), f"{name}: state what its layouts hold"
     return counts
@@ -162,7 +174,7 @@ def _check_world(env_id, **settings):
     # The oracle's success is reaching the goal: it does not know the own-success levels
     # (open the door, pick up the box or ball), so those are checked for solvability by
     # reachability in _check_rooms, and solved by a scripted solution in test_key_levels.
-    oracle = not isinstance(env, (RoomLevel, RedBlueDoors))
+    oracle = not isinstance(env, (RoomLevel, RedBlueDoors, MissionLevel))
     states, result = jax.device_get(_resets_and_oracle(env, KEY0, oracle))
     expected = _expected(env)
     width, height = env.width, env.height
@@ -173,7 +185,7 @@ def _check_world(env_id, **settings):
         grid, kind = states.grid[i], states.grid[i, ..., 0]
         assert kind.shape == (width, height), where
         ring = np.concatenate([kind[0], kind[-1], kind[:, 0], kind[:, -1]])
-        outer = not isinstance(env, MultiRoom)  # MultiRoom has no outer walls
+        outer = not isinstance(env, (MultiRoom, GoToDoor))  # GoToDoor: its room's, below
         assert (ring == WALL).all() or not outer, f"{where}: an object replaced the outer wall"
         x, y = states.agent_pos[i]
         assert 0 < x < width - 1 and 0 < y < height - 1, where
@@ -190,10 +202,15 @@ def _check_world(env_id, **settings):
         keys = np.argwhere(kind == KEY)
         if type(env).__name__ == "HazardRooms":  # its key opens nothing: it is a trigger
             keys = keys[:0]
+        if isinstance(env, MissionLevel):  # keys to go to, fetch or move: no locked doors
+            keys = keys[:0]
         for kx, ky in keys:  # the key opens the locked door
             assert len(locked) == 1 and grid[kx, ky, 1] == locked[0, 1], where
         if isinstance(env, RoomLevel):
             _check_rooms(env, grid, (x, y), jax.tree.map(lambda a, i=i: a[i], states.extras), where)
+        elif isinstance(env, MissionLevel):
+            extras = jax.tree.map(lambda a, i=i: a[i], states.extras)
+            _check_mission(env, grid, (x, y), extras, where)
         elif not isinstance(env, MultiRoom):  # its doors: test_room_levels walks them
             _check_doors(env, kind, where)
         if isinstance(env, RedBlueDoors):  # both doors can be faced from the agent's cell
@@ -251,6 +268,23 @@ def _check_structure(env, kind, where):
         lava_rows = (ys == 1) | (ys == env.strip2_row)
         assert ((kind == LAVA) <= (lava_rows & (xs >= 3) & (xs <= w - 4))).all(), where
         assert kind[w - 2, 1] == GOAL, where
+    elif name == "GoToDoor":  # a room from (0, 0), 5 .. size wide, a door inside each wall
+        solid = (kind == WALL) | (kind == DOOR)
+        rw, rh = xs[solid].max() + 1, ys[solid].max() + 1
+        edge = (xs == 0) | (ys == 0) | (xs == rw - 1) | (ys == rh - 1)
+        assert rw >= 5 and rh >= 5 and (solid == ((xs < rw) & (ys < rh) & edge)).all(), where
+        doors = np.argwhere(kind == DOOR)
+        walls = [(x == 0) + 2 * (x == rw - 1) + 4 * (y == 0) + 8 * (y == rh - 1) for x, y in doors]
+        assert sorted(walls) == [1, 2, 4, 8], f"{where}: doors {doors.tolist()}"
+        for x, y in doors:  # two cells from the room's corners at least
+            along, length = (x, rw) if y in (0, rh - 1) else (y, rh)
+            assert 2 <= along <= length - 3, f"{where}: door ({x}, {y}) by a corner"
+    elif isinstance(env, MissionLevel):  # num_objs objects (PutNear: apart) inside the walls
+        objects = np.argwhere(np.isin(kind, [KEY, BALL, BOX]))
+        assert len(objects) == env.num_objs, f"{where}: {len(objects)} objects"
+        if isinstance(env, PutNear):
+            gaps = np.abs(objects[:, None] - objects[None]).max(-1) + 2 * np.eye(len(objects))
+            assert gaps.min() >= 2, f"{where}: two objects next to each other"
 
 
 def _reach(passable, start) -> np.ndarray:
@@ -263,6 +297,39 @@ def _faceable(reach, cell) -> bool:
     """Whether the agent can stand next to ``cell`` (facing it) within ``reach``."""
     x, y = cell
     return bool(reach[x - 1, y] | reach[x + 1, y] | reach[x, y - 1] | reach[x, y + 1])
+
+
+def _check_mission(env, grid, agent, mission, where):
+    """GoToDoor, GoToObject, Fetch, PutNear: the task's objects lie where ``state.extras`` says,
+    and a solution exists by reachability (walking on empty cells): stand next to the target
+    (GoTo*); face an object of the target's type and colour (Fetch); face the object to move,
+    then, carrying it, an empty cell within one cell of the target (PutNear). Not checked with
+    three objects or more in GoToObject and Fetch: two of them may shut the agent into a
+    corner, away from the target, in MiniGrid's layouts and here alike."""
+    kind = grid[..., 0]
+    parts = [mission.move, mission.target] if hasattr(mission, "move") else [mission]
+    for m in parts:
+        cell = tuple(m.pos)
+        assert (kind[cell], grid[cell][1]) == (m.kind, m.colour), f"{where}: task off its object"
+    target = tuple(parts[-1].pos)
+    # _faceable on a padded grid: GoToDoor's doors may lie on the grid's border
+    faceable = lambda reach, c: _faceable(np.pad(reach, 1), (c[0] + 1, c[1] + 1))
+    reach = _reach(kind == EMPTY, agent)
+    if isinstance(env, (GoToObject, Fetch)) and env.num_objs >= 3:
+        return
+    if isinstance(env, (GoToDoor, GoToObject)):
+        assert faceable(reach, target), f"{where}: no way next to the target"
+    elif isinstance(env, Fetch):
+        same = (kind == mission.kind) & (grid[..., 1] == mission.colour)
+        assert any(faceable(reach, c) for c in np.argwhere(same)), f"{where}: out of reach"
+    else:
+        move = tuple(mission.move.pos)
+        assert faceable(reach, move), f"{where}: the object to move is out of reach"
+        xs, ys = np.meshgrid(*map(np.arange, kind.shape), indexing="ij")
+        free = (kind == EMPTY) | ((xs == move[0]) & (ys == move[1]))  # once it is picked up
+        carried = _reach(free, agent)
+        near = free & (np.abs(xs - target[0]) <= 1) & (np.abs(ys - target[1]) <= 1)
+        assert any(faceable(carried, c) for c in np.argwhere(near)), f"{where}: nowhere to drop"
 
 
 def _check_rooms(env, grid, agent, mission, where):
@@ -332,9 +399,13 @@ ONE_PER_CLASS = {
     "MiniGrid-MultiRoom-N6-v0",
     "MiniGrid-LockedRoom-v0",
     "MiniGrid-RedBlueDoors-6x6-v0",
+    "MiniGrid-GoToDoor-5x5-v0",
+    "MiniGrid-GoToObject-6x6-N2-v0",
+    "MiniGrid-Fetch-5x5-N2-v0",
+    "MiniGrid-PutNear-6x6-N2-v0",
 }
 MIN_SIZE_IDS = [
-    i if i not in {**NAVIGATION_IDS, **KEY_IDS, **ROOM_IDS} or i in ONE_PER_CLASS
+    i if i not in {**NAVIGATION_IDS, **KEY_IDS, **ROOM_IDS, **MISSION_IDS} or i in ONE_PER_CLASS
     else pytest.param(i, marks=pytest.mark.slow)
     for i in IDS
 ]  # fmt: skip
@@ -553,10 +624,6 @@ def test_gym_render_without_a_mode_warns_like_gymnasium():
 OWN_STEP = [
     "MiniGrid-Dynamic-Obstacles-5x5-v0",
     "MiniGrid-MemoryS7-v0",
-    "MiniGrid-Fetch-5x5-N2-v0",
-    "MiniGrid-GoToDoor-5x5-v0",
-    "MiniGrid-GoToObject-6x6-N2-v0",
-    "MiniGrid-PutNear-6x6-N2-v0",
 ]
 NATIVE_OWN_STEP = {
     "MiniGrid-Unlock-v0": Unlock,
@@ -564,6 +631,10 @@ NATIVE_OWN_STEP = {
     "MiniGrid-BlockedUnlockPickup-v0": BlockedUnlockPickup,
     "MiniGrid-KeyCorridorS3R1-v0": KeyCorridor,
     "MiniGrid-RedBlueDoors-6x6-v0": RedBlueDoors,
+    "MiniGrid-Fetch-5x5-N2-v0": Fetch,
+    "MiniGrid-GoToDoor-5x5-v0": GoToDoor,
+    "MiniGrid-GoToObject-6x6-N2-v0": GoToObject,
+    "MiniGrid-PutNear-6x6-N2-v0": PutNear,
 }
 
 
