@@ -34,7 +34,7 @@ from minigrid.core.world_object import Ball, Box, Key
 
 import jaxgrid
 from jaxgrid.compat import from_minigrid
-from jaxgrid.levels.keys import RoomLevel
+from jaxgrid.environment import Environment
 
 SEEDS = 32  # per level in the default run
 SLOW_SEEDS = 200
@@ -250,9 +250,14 @@ def test_native_levels_step_like_minigrid(env_id):
 @pytest.mark.slow
 @pytest.mark.parametrize("env_id", MINIGRID_IDS)
 def test_native_levels_step_like_minigrid_many_seeds(env_id):
-    # Levels with their own success rule step here under MiniGridEnv.step's rules (the core
-    # dynamics on their layouts); test_key_levels steps them under their own rules.
-    own_rule = isinstance(jaxgrid.make(env_id), RoomLevel)
+    # Levels with their own step rule step here under MiniGridEnv.step's rules (the core
+    # dynamics on their layouts); their own test files step them under their own rules.
+    own_rule = type(jaxgrid.make(env_id)).step is not Environment.step
+    if "GoToDoor" in env_id:
+        pytest.skip(
+            "GoToDoor's doors sit in the outer wall: under MiniGridEnv.step an agent walks into "
+            "one and faces out of the grid, where MiniGrid's Grid.get raises"
+        )
     _native(env_id, SLOW_SEEDS, key_seed=7, encode_every_step=True, base_step=own_rule)
 
 
