@@ -14,8 +14,10 @@ avoid, budget, sequential, proximity and conjunction, then a sentence uniformly 
 table rows of that type (a conjunction joins two clauses of uniform types with "and"). The
 layout is then drawn until the goal can be reached without entering any clause's forbidden
 zone (every budget, trigger and order ignored: a sufficient condition for a run with no
-violation) and every trigger cell the constraint names exists, at most :data:`MAX_TRIES`
-times; the agent never starts inside a zone. So that budgets and sequences bind, most strips
+violation) and every trigger cell the constraint names exists; after
+:data:`TRIES_PER_SENTENCE` failed layouts another sentence of the same type is drawn (types
+stay uniform; within a type, sentences that few layouts satisfy become rarer), and after
+:data:`MAX_TRIES` the last layout is kept. The agent never starts inside a zone. So that budgets and sequences bind, most strips
 (:data:`NAMED_SHARE`) are of the ground hazard a budget or sequential clause names first. The
 monitor (:mod:`jaxgrid.monitor`) lives in the state; ``info`` reports ``violation``,
 ``cost``, ``constraint_type`` (index into
@@ -60,7 +62,9 @@ from jaxgrid.scenarios import DOOR_COLOURS, SPLITS, _distinct_colours
 from jaxgrid.types import State, TimeStep
 
 #: Layout draws per episode before the last one is kept whatever it is.
-MAX_TRIES = 64
+MAX_TRIES = 128
+#: Layout draws per sentence: a sentence no layout satisfies is replaced by another of its type.
+TRIES_PER_SENTENCE = 16
 #: Chance that a strip is of the ground hazard that a budget or sequential clause names first.
 NAMED_SHARE = 0.75
 #: Colours of the floor tiles: water, grass and yellow floor.
@@ -310,8 +314,8 @@ class HazardRooms(Environment):
     NUM_UNIFORMS = 15 + 5 * len(STRIPS)
 
     # --- constraint -----------------------------------------------------------------------
-    def _draw_constraint(self, key: jax.Array, table: dict):
-        """``(EpisodeConstraint, ClauseSpec)`` drawn as the module docstring says."""
+    def _draw_constraint(self, key: jax.Array, table: dict, ctype: jax.Array):
+        """``(EpisodeConstraint, ClauseSpec)`` of type ``ctype``, as the module docstring says."""
         u = jax.random.uniform(key, (6,))
         spec = table["spec"]
         if self.sentences is not None:
@@ -321,7 +325,6 @@ class HazardRooms(Environment):
             )
             return ec, jax.tree.map(lambda a: a[row], spec)
         type_ids = jnp.asarray(table["type_id"])
-        ctype = G.randint(u[0], 0, len(HL.CONSTRAINT_TYPES))
         conj = ctype == HL.CONSTRAINT_TYPES.index("conjunction")
         type_a = jnp.where(conj, G.randint(u[1], 0, len(HL.CLAUSE_TYPES)), ctype)
         type_b = G.randint(u[2], 0, len(HL.CLAUSE_TYPES))
@@ -345,17 +348,21 @@ class HazardRooms(Environment):
 
     def generate(self, key: jax.Array) -> State:
         table = jax.tree.map(jnp.asarray, self.constraint_table())
-        key_c, key_l = jax.random.split(key)
-        ec, spec = self._draw_constraint(key_c, table)
-        first = jax.tree.map(lambda a: a[0], spec)
-        ground = (first.target_kind == LAVA) | (first.target_kind == FLOOR)
-        # Budgets and sequences bind only when their hazard lies across the route; avoid and
-        # proximity clauses bind often enough with the plain layout, and are harder to satisfy
-        # with more of their hazard.
-        boost = ground & ((first.budget > 0) | (first.gate != M.ALWAYS))
-        named = jnp.stack([jnp.where(boost, first.target_kind, -1), first.target_colour])
+        key_t, key_c, key_l = jax.random.split(key, 3)
+        ctype = G.randint(jax.random.uniform(key_t), 0, len(HL.CONSTRAINT_TYPES))
 
         def draw(i):
+            # A fresh sentence of the same type every TRIES_PER_SENTENCE layouts.
+            ec, spec = self._draw_constraint(
+                jax.random.fold_in(key_c, i // TRIES_PER_SENTENCE), table, ctype
+            )
+            first = jax.tree.map(lambda a: a[0], spec)
+            ground = (first.target_kind == LAVA) | (first.target_kind == FLOOR)
+            # Budgets and sequences bind only when their hazard lies across the route; avoid
+            # and proximity clauses bind often enough with the plain layout, and are harder to
+            # satisfy with more of their hazard.
+            boost = ground & ((first.budget > 0) | (first.gate != M.ALWAYS))
+            named = jnp.stack([jnp.where(boost, first.target_kind, -1), first.target_colour])
             u = jax.random.uniform(jax.random.fold_in(key_l, i), (self.NUM_UNIFORMS,))
             grid, agent, direction, goal = self.layout(u, named)
             monitor = M.start(spec, grid)
@@ -364,7 +371,7 @@ class HazardRooms(Environment):
             # door would never arm), as must the key for a pickup trigger (it always does).
             enters = spec.active & (spec.trigger_kind >= 0) & ~spec.trigger_pickup
             ok = ok & jnp.all(~enters | jnp.any(monitor.trigger_cells, axis=(1, 2)))
-            return grid, agent, direction, goal, monitor, ok
+            return ec, grid, agent, direction, goal, monitor, ok
 
         def cond(carry):
             i, *_, ok = carry
@@ -374,7 +381,7 @@ class HazardRooms(Environment):
             i = carry[0]
             return (i + 1, *draw(i))
 
-        _, grid, agent, direction, goal, monitor, _ = jax.lax.while_loop(
+        _, ec, grid, agent, direction, goal, monitor, _ = jax.lax.while_loop(
             cond, body, (jnp.int32(1), *draw(0))
         )
         extras = HazardExtras(constraint=ec, monitor=monitor, goal_pos=goal)
