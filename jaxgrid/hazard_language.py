@@ -434,17 +434,7 @@ def tokenize(sentence: str) -> np.ndarray:
 
 def detokenize(ids: Any) -> str:
     """Words of a 1-D sequence of token ids, up to the first pad."""
-    arr = np.asarray(ids)
-    if arr.ndim != 1:
-        raise ValueError(f"detokenize expects a 1-D sequence of ids, got shape {arr.shape}")
-    words = []
-    for i in arr.tolist():
-        if i == 0:
-            break
-        if not 0 < i < len(VOCAB):
-            raise ValueError(f"token id {i} out of range [0, {len(VOCAB)})")
-        words.append(VOCAB[i])
-    return " ".join(words)
+    return language.detokenize(ids, VOCAB)
 
 
 # --------------------------------------------------------------------------------------

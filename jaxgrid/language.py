@@ -397,8 +397,9 @@ def tokenize_batch(sentences: Iterable[str]) -> np.ndarray:
     return np.stack(rows) if rows else np.zeros((0, MAX_LEN), dtype=np.int32)
 
 
-def detokenize(ids: Any) -> str:
-    """Words of a 1-D sequence of token ids (list, numpy or JAX array), up to the first pad."""
+def detokenize(ids: Any, vocab: Sequence[str] = VOCAB) -> str:
+    """Words of a 1-D sequence of token ids (list, numpy or JAX array), up to the first pad;
+    ``vocab`` maps ids to words (this language's by default)."""
     arr = np.asarray(ids)
     if arr.ndim != 1:
         raise ValueError(f"detokenize expects a 1-D sequence of ids, got shape {arr.shape}")
@@ -408,9 +409,9 @@ def detokenize(ids: Any) -> str:
     for i in arr.tolist():
         if i == 0:
             break
-        if not 0 < i < len(VOCAB):
-            raise ValueError(f"token id {i} out of range [0, {len(VOCAB)})")
-        words.append(VOCAB[i])
+        if not 0 < i < len(vocab):
+            raise ValueError(f"token id {i} out of range [0, {len(vocab)})")
+        words.append(vocab[i])
     return " ".join(words)
 
 
