@@ -79,6 +79,8 @@ class Adapter:
     done: Callable[[Any], jax.Array]
     observation: Callable[[Any], jax.Array]
     notes: dict[str, str]
+    # A step of the whole batch, where the library has one (else ``vmap(step)``).
+    batched_step: Callable[[Any, jax.Array], Any] | None = None
 
 
 #: The level every peer ships, measured by default.
@@ -179,8 +181,25 @@ def _make_xminigrid(env_id: str = DEFAULT_ENV_ID) -> Adapter:
     )
 
 
+def _make_jaxgrid_masked(env_id: str = DEFAULT_ENV_ID) -> Adapter:
+    """jaxgrid stepped as its learner steps it: ``BatchedAutoReset`` generates fresh episodes
+    only for the envs that ended (``AutoReset`` computes a reset for every env, every step)."""
+    import jaxgrid
+
+    batched = jaxgrid.wrappers.BatchedAutoReset(jaxgrid.make(env_id))
+    single = _make_jaxgrid(env_id)
+    return dataclasses.replace(
+        single,
+        lib="jaxgrid-masked",
+        batched_step=lambda s, a: batched.step(s[0], a),
+        notes={**single.notes, "auto_reset": "jaxgrid.wrappers.BatchedAutoReset (same-step "
+               "reset, generated only where an episode ended: masked_map, 16 envs a pass)"},
+    )  # fmt: skip
+
+
 _ADAPTERS: dict[str, Callable[[], Adapter]] = {
     "jaxgrid": _make_jaxgrid,
+    "jaxgrid-masked": _make_jaxgrid_masked,
     "navix": _make_navix,
     "xminigrid": _make_xminigrid,
 }
@@ -193,7 +212,7 @@ def make_rollout(adapter: Adapter, num_envs: int, steps: int) -> Callable:
     the number of finished episodes and a checksum of the final observation (keeps the
     observation computation alive under XLA's dead-code elimination).
     """
-    vstep = jax.vmap(adapter.step)
+    vstep = adapter.batched_step or jax.vmap(adapter.step)
 
     def body(carry, _):
         env_state, key, reward_sum, episodes = carry
@@ -349,6 +368,7 @@ def default_steps(num_envs: int) -> int:
 
 _IMPORT_NAMES = {
     "jaxgrid": "jaxgrid",
+    "jaxgrid-masked": "jaxgrid",
     "navix": "navix",
     "xminigrid": "xminigrid",
     "minigrid": "minigrid",

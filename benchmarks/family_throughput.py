@@ -6,6 +6,9 @@ The harness of :mod:`benchmarks.env_throughput` (random actions, auto-reset, ``l
 DistShift and GoToDoor where both libraries have the id. NAVIX runs each level with
 MiniGrid's ``max_steps``. Its observation is the full symbolic grid (no egocentric crop, no
 occlusion), less work per step than jaxgrid's MiniGrid view; the ratio is quoted as measured.
+jaxgrid runs twice: with ``AutoReset`` (a fresh episode computed for every env on every step
+and selected, as in ``env_throughput``) and with ``BatchedAutoReset`` (fresh episodes only
+where one ended, as its learner steps it); NAVIX with its built-in auto-reset.
 
 NAVIX needs an older JAX than jaxgrid's default environment; run this module from an
 environment where both import (``pip install navix`` pins its JAX)::
@@ -51,29 +54,29 @@ def main(argv=None) -> dict:
     rows, skipped = [], {}
     for env_id in args.ids:
         try:
-            pair = [
-                ET.measure(lib, args.num_envs, steps, args.repeats, env_id=env_id)
-                for lib in ("jaxgrid", "navix")
-            ]
+            res = {
+                lib: ET.measure(lib, args.num_envs, steps, args.repeats, env_id=env_id)
+                for lib in ("jaxgrid", "jaxgrid-masked", "navix")
+            }
         except ValueError as exc:  # an id one of them lacks
             skipped[env_id] = str(exc)
             print(f"{env_id}: skipped ({exc})", file=sys.stderr)
             continue
-        ours, theirs = pair
-        row = {
-            "env_id": env_id,
-            "num_envs": args.num_envs,
-            "jaxgrid_steps_per_s": ours["steps_per_s"],
-            "navix_steps_per_s": theirs["steps_per_s"],
-            "ratio": ours["steps_per_s"] / theirs["steps_per_s"],
-            "jaxgrid_compile_s": ours["compile_s"],
-            "navix_compile_s": theirs["compile_s"],
-        }
+        navix = res["navix"]["steps_per_s"]
+        row = {"env_id": env_id, "num_envs": args.num_envs}
+        for lib, r in res.items():
+            key = lib.replace("-", "_")
+            row[f"{key}_steps_per_s"] = r["steps_per_s"]
+            row[f"{key}_compile_s"] = r["compile_s"]
+        row["ratio"] = row["jaxgrid_steps_per_s"] / navix
+        row["ratio_masked"] = row["jaxgrid_masked_steps_per_s"] / navix
         rows.append(row)
         print(
-            f"{env_id:<34} jaxgrid {ET._fmt_rate(row['jaxgrid_steps_per_s']):>8}/s "
-            f"navix {ET._fmt_rate(row['navix_steps_per_s']):>8}/s  x{row['ratio']:.2f}  "
-            f"compile {row['jaxgrid_compile_s']:.1f} s vs {row['navix_compile_s']:.1f} s",
+            f"{env_id:<32} jaxgrid {ET._fmt_rate(row['jaxgrid_steps_per_s']):>7}/s "
+            f"(masked {ET._fmt_rate(row['jaxgrid_masked_steps_per_s']):>7}/s) "
+            f"navix {ET._fmt_rate(navix):>7}/s  x{row['ratio']:.2f} (masked "
+            f"x{row['ratio_masked']:.2f})  compile {row['jaxgrid_compile_s']:.1f} s vs "
+            f"{row['navix_compile_s']:.1f} s",
             flush=True,
         )
     out = {

@@ -1,12 +1,10 @@
-"""benchmarks.hazard_checks and benchmarks.family_throughput on tiny inputs."""
+"""benchmarks.hazard_checks on a tiny HazardRooms."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import pytest
 
-from benchmarks import family_throughput, hazard_checks
+from benchmarks import hazard_checks
 from jaxgrid import hazard_language as HL
 from jaxgrid.hazard import HazardRooms
 
@@ -24,10 +22,3 @@ def test_oracle_figures_cover_every_type_and_obey():
 def test_bad_episode_count_is_refused():
     with pytest.raises(SystemExit):
         hazard_checks.main(["--episodes", "0"])
-
-
-@pytest.mark.skipif(importlib.util.find_spec("navix") is not None, reason="navix is installed")
-def test_family_throughput_says_navix_is_missing(capsys):
-    with pytest.raises(SystemExit):
-        family_throughput.main(["--num-envs", "4"])
-    assert "navix" in capsys.readouterr().err

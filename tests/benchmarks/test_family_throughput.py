@@ -1,0 +1,27 @@
+"""benchmarks.family_throughput and the masked auto-reset adapter it measures."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import pytest
+
+from benchmarks import env_throughput as ET
+from benchmarks import family_throughput
+
+
+@pytest.mark.skipif(importlib.util.find_spec("navix") is not None, reason="navix is installed")
+def test_family_throughput_says_navix_is_missing(capsys):
+    with pytest.raises(SystemExit):
+        family_throughput.main(["--num-envs", "4"])
+    assert "navix" in capsys.readouterr().err
+
+
+def test_masked_auto_reset_plays_the_same_episodes():
+    a, b = (
+        ET.measure(lib, 8, 32, repeats=1, env_id="MiniGrid-LavaGapS5-v0")
+        for lib in ("jaxgrid", "jaxgrid-masked")
+    )
+    assert a["episodes_finished"] > 0
+    assert (a["episodes_finished"], a["reward_sum"]) == (b["episodes_finished"], b["reward_sum"])
+    assert b["lib"] == "jaxgrid-masked" and "BatchedAutoReset" in b["notes"]["auto_reset"]
