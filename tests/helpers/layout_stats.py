@@ -16,6 +16,7 @@ import functools
 
 import jax
 import numpy as np
+import pytest
 from scipy.stats import chi2_contingency
 
 from helpers.xla import CHEAP
@@ -136,3 +137,42 @@ def compare_distributions(name, ours, ref, alpha=ALPHA) -> float:
     if counts.shape[1] < 2:
         return 1.0
     return _assert_homogeneous(name, counts, mine, theirs, alpha)
+
+
+def same_occupancy(name, ours, ref, alpha=ALPHA) -> float:
+    """Per cell of bool ``(n, W, H)`` masks, a 2x2 homogeneity test at ``alpha / cells``;
+    returns the smallest p-value times the number of cells tested."""
+    k1, k2 = ours.sum(axis=0), ref.sum(axis=0)
+    n1, n2 = len(ours), len(ref)
+    cells = np.argwhere((k1 + k2 > 0) & (k1 + k2 < n1 + n2))
+    worst = 1.0
+    for x, y in cells:
+        p = chi2_contingency([[k1[x, y], n1 - k1[x, y]], [k2[x, y], n2 - k2[x, y]]]).pvalue
+        assert p > alpha / len(cells), (
+            f"{name} cell ({x}, {y}): {k1[x, y]}/{n1} vs MiniGrid {k2[x, y]}/{n2}, p={p:.2e}"
+        )
+        worst = min(worst, p * len(cells))
+    return worst
+
+
+def compare_all(label, ours, ref) -> dict:
+    """:func:`compare_distributions` for every marginal of two dicts of samples, and
+    :func:`same_occupancy` for those named ``cells:...`` (bool masks); prints the worst p."""
+    assert set(ours) == set(ref), sorted(set(ours) ^ set(ref))
+    p = {}
+    for name in ours:
+        test = same_occupancy if name.startswith("cells:") else compare_distributions
+        p[name] = test(f"{label} {name}", ours[name], ref[name])
+    worst = min(p, key=p.get)
+    print(f"{label}: {len(p)} quantities, smallest p {p[worst]:.3g} ({worst})")
+    return p
+
+
+def id_param(env_id, default):
+    """``env_id`` as a pytest parameter, marked slow unless it is in ``default``."""
+    return pytest.param(env_id, id=env_id, marks=() if env_id in default else pytest.mark.slow)
+
+
+def coords(width, height):
+    """``(xs, ys)`` integer coordinate planes of shape ``(W, H)``."""
+    return np.meshgrid(np.arange(width), np.arange(height), indexing="ij")

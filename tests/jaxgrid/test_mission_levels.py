@@ -41,7 +41,10 @@ import pytest
 from helpers import minigrid_reference as R
 from helpers.layout_stats import (
     cell_id,
+    compare_all,
     compare_distributions,
+    coords,
+    id_param,
     jax_reset_states,
     minigrid_resets,
 )
@@ -89,22 +92,6 @@ STEP_DEFAULT = {
     "MiniGrid-Fetch-5x5-N2-v0",
     "MiniGrid-PutNear-6x6-N2-v0",
 }
-
-
-def _param(env_id, default):
-    return pytest.param(env_id, id=env_id, marks=() if env_id in default else pytest.mark.slow)
-
-
-def _coords(width, height):
-    return np.meshgrid(np.arange(width), np.arange(height), indexing="ij")
-
-
-def compare_all(label, ours, ref) -> dict:
-    assert set(ours) == set(ref), sorted(set(ours) ^ set(ref))
-    p = {name: compare_distributions(f"{label} {name}", ours[name], ref[name]) for name in ours}
-    worst = min(p, key=p.get)
-    print(f"{label}: {len(p)} marginals, smallest p {p[worst]:.3g} ({worst})")
-    return p
 
 
 # ------------------------------------------------------------------------- tasks
@@ -172,7 +159,7 @@ def door_choices(env, grids, pos, dirs, tasks):
     n, w, h, _ = grids.shape
     rows = np.arange(n)
     kinds = grids[..., 0]
-    xs, ys = _coords(w, h)
+    xs, ys = coords(w, h)
     solid = (kinds == WALL) | (kinds == DOOR)
     rw = np.array([xs[s].max() + 1 for s in solid])
     rh = np.array([ys[s].max() + 1 for s in solid])
@@ -226,7 +213,7 @@ def object_choices(env, grids, pos, dirs, tasks):
     n, w, h, _ = grids.shape
     rows = np.arange(n)
     kinds = grids[..., 0]
-    xs, ys = _coords(w, h)
+    xs, ys = coords(w, h)
     border = (xs == 0) | (ys == 0) | (xs == w - 1) | (ys == h - 1)
     assert ((kinds == WALL) == border[None]).all(), "walls off the border"
     types = (KEY, BALL) if isinstance(env, Fetch) else (KEY, BALL, BOX)
@@ -299,7 +286,7 @@ def jax_choices(env, n):
     return choices(env, st.grid, st.agent_pos, st.agent_dir, native_task(st.extras))
 
 
-@pytest.mark.parametrize("env_id", [_param(i, DEFAULT) for i in IDS])
+@pytest.mark.parametrize("env_id", [id_param(i, DEFAULT) for i in IDS])
 def test_layout_distribution(env_id):
     env = jaxgrid.make(env_id)
     n = N_MINIGRID if env_id in DEFAULT else N_SLOW
@@ -593,14 +580,14 @@ def native_run(env_id, num, key_seed):
     return episodes
 
 
-@pytest.mark.parametrize("env_id", [_param(i, STEP_DEFAULT) for i in IDS])
+@pytest.mark.parametrize("env_id", [id_param(i, STEP_DEFAULT) for i in IDS])
 def test_converted_episodes_step_like_minigrid(env_id):
     episodes = converted_run(env_id, range(8))
     wins, losses = outcomes(episodes)
     assert wins >= 2 and losses >= 4, (wins, losses)
 
 
-@pytest.mark.parametrize("env_id", [_param(i, STEP_DEFAULT) for i in IDS])
+@pytest.mark.parametrize("env_id", [id_param(i, STEP_DEFAULT) for i in IDS])
 def test_native_resets_step_like_minigrid(env_id):
     episodes = native_run(env_id, 8, key_seed=1)
     wins, losses = outcomes(episodes)

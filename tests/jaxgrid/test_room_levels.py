@@ -40,9 +40,11 @@ import pytest
 import scipy.ndimage
 from helpers import minigrid_reference as R
 from helpers.layout_stats import (
-    ALPHA,
     cell_id,
+    compare_all,
     compare_distributions,
+    coords,
+    id_param,
     jax_reset_states,
     jax_resets,
     minigrid_resets,
@@ -51,7 +53,6 @@ from helpers.layout_stats import (
 from helpers.xla import CHEAP
 from minigrid.core.world_object import Door
 from minigrid.envs import LockedRoomEnv, MultiRoomEnv, RedBlueDoorEnv
-from scipy.stats import chi2_contingency
 
 import jaxgrid
 from jaxgrid.compat import from_minigrid
@@ -86,42 +87,6 @@ DEFAULT_LAYOUTS = {
     "MiniGrid-LockedRoom-v0",
     "MiniGrid-RedBlueDoors-8x8-v0",
 }
-
-
-def _param(env_id, default):
-    return pytest.param(env_id, id=env_id, marks=() if env_id in default else pytest.mark.slow)
-
-
-def _coords(width, height):
-    return np.meshgrid(np.arange(width), np.arange(height), indexing="ij")
-
-
-def compare_all(label, ours, ref) -> dict:
-    """``compare_distributions`` for every marginal; per-cell tests for ``cells:`` masks."""
-    assert set(ours) == set(ref), sorted(set(ours) ^ set(ref))
-    p = {}
-    for name in ours:
-        test = same_occupancy if name.startswith("cells:") else compare_distributions
-        p[name] = test(f"{label} {name}", ours[name], ref[name])
-    worst = min(p, key=p.get)
-    print(f"{label}: {len(p)} quantities, smallest p {p[worst]:.3g} ({worst})")
-    return p
-
-
-def same_occupancy(name, ours, ref, alpha=ALPHA) -> float:
-    """Per cell of bool ``(n, W, H)`` masks, a 2x2 homogeneity test at ``alpha / cells``;
-    returns the smallest p-value times the number of cells tested."""
-    k1, k2 = ours.sum(axis=0), ref.sum(axis=0)
-    n1, n2 = len(ours), len(ref)
-    cells = np.argwhere((k1 + k2 > 0) & (k1 + k2 < n1 + n2))
-    worst = 1.0
-    for x, y in cells:
-        p = chi2_contingency([[k1[x, y], n1 - k1[x, y]], [k2[x, y], n2 - k2[x, y]]]).pvalue
-        assert p > alpha / len(cells), (
-            f"{name} cell ({x}, {y}): {k1[x, y]}/{n1} vs MiniGrid {k2[x, y]}/{n2}, p={p:.2e}"
-        )
-        worst = min(worst, p * len(cells))
-    return worst
 
 
 # ------------------------------------------------------------------- MultiRoom layouts
@@ -174,7 +139,7 @@ def multiroom_choices(grids, pos, dirs):
     """Check MultiRoom layouts; return their random choices (name -> one value per layout,
     ``cells:`` names -> bool ``(n, W, H)`` masks)."""
     n, width, height, _ = grids.shape
-    xs, ys = _coords(width, height)
+    xs, ys = coords(width, height)
     out = collections.defaultdict(list)
     walls_seen, doors_seen = [], []
     for grid, p, d in zip(grids, pos, dirs, strict=True):
@@ -246,7 +211,7 @@ def minigrid_multiroom_choices(env_id, n):
     return multiroom_choices(*minigrid_resets(R.make_reference(env_id), n))
 
 
-@pytest.mark.parametrize("env_id", [_param(i, DEFAULT_LAYOUTS) for i in MULTIROOMS])
+@pytest.mark.parametrize("env_id", [id_param(i, DEFAULT_LAYOUTS) for i in MULTIROOMS])
 def test_multiroom_layout_distribution(env_id):
     env = jaxgrid.make(env_id)
     n = N_MINIGRID if env_id in DEFAULT_LAYOUTS else N_SLOW
@@ -355,7 +320,7 @@ def red_blue_choices(env, grids, pos, dirs):
     assert (red[:, 0] == left).all() and (blue[:, 0] == left + size - 1).all()
     assert ((kinds == DOOR).sum(axis=(1, 2)) == 2).all()
     assert (grids[kinds == DOOR][:, 2] == CLOSED).all()
-    xs, ys = _coords(env.width, size)
+    xs, ys = coords(env.width, size)
     outer = (xs == 0) | (xs == env.width - 1) | (ys == 0) | (ys == size - 1)
     walls = outer | (xs == left) | (xs == left + size - 1)
     assert ((kinds == WALL) | (kinds == DOOR) == walls[None]).all(), "walls off the layout"
@@ -372,7 +337,7 @@ def red_blue_choices(env, grids, pos, dirs):
     }
 
 
-@pytest.mark.parametrize("env_id", [_param(i, DEFAULT_LAYOUTS) for i in REDBLUE])
+@pytest.mark.parametrize("env_id", [id_param(i, DEFAULT_LAYOUTS) for i in REDBLUE])
 def test_red_blue_doors_layout_distribution(env_id):
     env = jaxgrid.make(env_id)
     n = N_MINIGRID if env_id in DEFAULT_LAYOUTS else N_SLOW
@@ -495,7 +460,7 @@ STEP_DEFAULT = {"MiniGrid-MultiRoom-N4-S5-v1", "MiniGrid-LockedRoom-v0"}
 
 
 @pytest.mark.parametrize(
-    "env_id", [_param(i, STEP_DEFAULT) for i in MULTIROOMS + ["MiniGrid-LockedRoom-v0"]]
+    "env_id", [id_param(i, STEP_DEFAULT) for i in MULTIROOMS + ["MiniGrid-LockedRoom-v0"]]
 )
 def test_native_levels_step_like_minigrid(env_id):
     episodes = native_oracle_run(env_id, 8, key_seed=0)
@@ -612,7 +577,7 @@ def outcomes(episodes):
     return sum(bool(t and r > 0) for t, r in ends), sum(bool(t and r == 0) for t, r in ends)
 
 
-@pytest.mark.parametrize("env_id", [_param(i, {"MiniGrid-RedBlueDoors-6x6-v0"}) for i in REDBLUE])
+@pytest.mark.parametrize("env_id", [id_param(i, {"MiniGrid-RedBlueDoors-6x6-v0"}) for i in REDBLUE])
 def test_red_blue_doors_step_like_minigrid(env_id):
     episodes = red_blue_differential(env_id, range(12))
     wins, losses = outcomes(episodes)
