@@ -14,7 +14,10 @@ results may differ in the last bits from another setting's.
 
 from __future__ import annotations
 
+import time
+
 import jax
+import jax.numpy as jnp
 
 OPTIMISED = {"xla_backend_optimization_level": 3}
 
@@ -29,3 +32,18 @@ def _cheap() -> dict:
 
 
 CHEAP = _cheap()
+
+
+def compile_seconds(env, num_envs: int) -> tuple[float, float, float]:
+    """``(reset compile, reset run, step compile)`` seconds of ``jit(vmap(reset))`` and
+    ``jit(vmap(step))`` over ``num_envs`` envs (the suite's XLA flags); prints them."""
+    keys = jax.random.split(jax.random.PRNGKey(0), num_envs)
+    t0 = time.perf_counter()
+    reset = jax.jit(jax.vmap(env.reset)).lower(keys).compile()
+    t1 = time.perf_counter()
+    states, _ = jax.block_until_ready(reset(keys))
+    t2 = time.perf_counter()
+    jax.jit(jax.vmap(env.step)).lower(states, jnp.zeros(num_envs, jnp.int32)).compile()
+    t3 = time.perf_counter()
+    print(f"compile reset {t1 - t0:.2f} s, step {t3 - t2:.2f} s; {num_envs} resets {t2 - t1:.3f} s")
+    return t1 - t0, t2 - t1, t3 - t2

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import collections
 import functools
-import time
 from dataclasses import fields
 
 import jax
@@ -48,6 +47,7 @@ from helpers.layout_stats import (
     jax_reset_states,
     minigrid_resets,
 )
+from helpers.xla import compile_seconds
 from minigrid.envs import FetchEnv, GoToDoorEnv, GoToObjectEnv, PutNearEnv
 
 import jaxgrid
@@ -750,16 +750,5 @@ def test_min_sizes():
 @pytest.mark.parametrize("env_id", list(IDS))
 def test_compile_seconds(env_id):
     """Compile time of ``jit(vmap(reset))`` and ``jit(vmap(step))`` (the suite's XLA flags)."""
-    env = jaxgrid.make(env_id)
-    keys = jax.random.split(jax.random.PRNGKey(0), 4096)
-    t0 = time.perf_counter()
-    reset = jax.jit(jax.vmap(env.reset)).lower(keys).compile()
-    t1 = time.perf_counter()
-    states, _ = reset(keys)
-    jax.block_until_ready(states)
-    t2 = time.perf_counter()
-    jax.jit(jax.vmap(env.step)).lower(states, jnp.zeros(4096, jnp.int32)).compile()
-    t3 = time.perf_counter()
-    print(f"{env_id}: compile reset {t1 - t0:.2f} s, step {t3 - t2:.2f} s; "
-          f"4096 resets {t2 - t1:.3f} s")  # fmt: skip
-    assert t3 - t0 < 20
+    reset, run, step = compile_seconds(jaxgrid.make(env_id), 4096)
+    assert reset + run + step < 20

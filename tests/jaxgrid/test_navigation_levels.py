@@ -27,7 +27,15 @@ import jax
 import numpy as np
 import pytest
 from helpers import minigrid_reference as R
-from helpers.layout_stats import ALPHA, cell_id, jax_resets, minigrid_resets, only, reset_fn
+from helpers.layout_stats import (
+    ALPHA,
+    cell_id,
+    jax_resets,
+    minigrid_resets,
+    only,
+    reset_fn,
+    same_occupancy,
+)
 from minigrid.core.mission import MissionSpace
 from minigrid.envs import CrossingEnv, FourRoomsEnv
 from minigrid.minigrid_env import MiniGridEnv
@@ -96,23 +104,6 @@ def assert_same_distribution(name, ours, ref, alpha=ALPHA):
     return p
 
 
-def assert_same_occupancy(name, ours, ref, alpha=ALPHA):
-    """Per cell of bool ``(n, W, H)`` masks: a 2x2 homogeneity test at ``alpha / cells``."""
-    k1, k2 = ours.sum(axis=0), ref.sum(axis=0)
-    n1, n2 = len(ours), len(ref)
-    varying = (k1 + k2 > 0) & (k1 + k2 < n1 + n2)
-    cells = np.argwhere(varying)
-    worst = 1.0  # the smallest p-value, scaled to the single-test ALPHA (Bonferroni)
-    for x, y in cells:
-        table = [[k1[x, y], n1 - k1[x, y]], [k2[x, y], n2 - k2[x, y]]]
-        p = chi2_contingency(table).pvalue
-        worst = min(worst, p * len(cells))
-        assert p > alpha / len(cells), (
-            f"{name} cell ({x}, {y}): {k1[x, y]}/{n1} vs MiniGrid {k2[x, y]}/{n2}, p={p:.2e}"
-        )
-    return worst
-
-
 def compare_choices(label, ours, ref):
     """Every quantity of ``ours`` against ``ref``: chi-square for values, per cell for masks.
 
@@ -121,7 +112,7 @@ def compare_choices(label, ours, ref):
     """
     ps = {}
     for name in ours:
-        test = assert_same_occupancy if name.startswith("cells:") else assert_same_distribution
+        test = same_occupancy if name.startswith("cells:") else assert_same_distribution
         ps[name] = test(f"{label} {name}", ours[name], ref[name])
     worst = min(ps, key=ps.get)
     print(f"{label}: {len(ps)} quantities, smallest p {ps[worst]:.3g} ({worst})")
@@ -360,7 +351,7 @@ def test_other_settings_match_minigrids_generator(label):
         assert_same_distribution(
             label, cell_id(pos, 7) * 4 + dirs, cell_id(ref_pos, 7) * 4 + ref_dirs
         )
-        assert_same_occupancy(label, grids[..., 0] == WALL, ref_grids[..., 0] == WALL)
+        same_occupancy(label, grids[..., 0] == WALL, ref_grids[..., 0] == WALL)
         return
     check_layouts(label, env, mg, N_JAX, N_MINIGRID)
 
