@@ -212,17 +212,23 @@ class Learner(struct.PyTreeNode):
         env, (traj, stats) = lax.scan(step, runner.env, keys)
         return env, traj, stats
 
+    def collect(self, runner: RunnerState, key: jax.Array, lang_table=None):
+        """A rollout and its training batch: ``(env carry, Transition, statistics, batch)``
+        (:meth:`rollout`, the last observation's values, :meth:`training_batch`)."""
+        lang_table = self.lang_table(runner.params) if lang_table is None else lang_table
+        env, traj, stats = self.rollout(runner, key, lang_table)
+        _, last_value, last_cost_value, _ = self.policy(runner.params, lang_table)(
+            env.obs["image"], env.obs["direction"], env.sentence, env.memory
+        )
+        batch = self.training_batch(traj, last_value, last_cost_value, runner.env.memory)
+        return env, traj, stats, batch
+
     def update(self, runner: RunnerState):
         """One PPO update: rollout, GAE, epochs x minibatches. Returns per-update metrics."""
         c = self.config
         key, rollout_key, perm_key = jax.random.split(runner.key, 3)
         params = runner.params
-        lang_table = self.lang_table(params)
-        env, traj, stats = self.rollout(runner, rollout_key, lang_table)
-        _, last_value, last_cost_value, _ = self.policy(params, lang_table)(
-            env.obs["image"], env.obs["direction"], env.sentence, env.memory
-        )
-        batch = self.training_batch(traj, last_value, last_cost_value, runner.env.memory)
+        env, traj, stats, batch = self.collect(runner, rollout_key, self.lang_table(params))
         penalty = self.penalty_at(runner.update, self.hparam(runner, "penalty"))
         blocked_weight = penalty if self.shield is not None else 0.0
         ent_coef = self.hparam(runner, "ent_coef")

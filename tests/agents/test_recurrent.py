@@ -36,12 +36,7 @@ def rollout():
     @fast_jit
     def go(key):
         runner = learner.init(key)
-        lang = learner.lang_table(runner.params)
-        env, traj, _ = learner.rollout(runner, key, lang)
-        _, last_value, last_cost, _ = learner.policy(runner.params, lang)(
-            env.obs["image"], env.obs["direction"], env.sentence, env.memory
-        )
-        batch = learner.training_batch(traj, last_value, last_cost, runner.env.memory)
+        env, traj, _, batch = learner.collect(runner, key)
         return runner, env, traj, batch
 
     return learner, go(jax.random.PRNGKey(3))

@@ -130,13 +130,7 @@ def monitor_rollout():
     @fast_jit
     def go(key):
         runner = learner.init(key)
-        lang = learner.lang_table(runner.params)
-        _, traj, stats = learner.rollout(runner, key, lang)
-        _, last_value, last_cost, _ = learner.policy(runner.params, lang)(
-            runner.env.obs["image"], runner.env.obs["direction"], runner.env.sentence,
-            runner.env.memory,
-        )  # fmt: skip
-        batch = learner.training_batch(traj, last_value, last_cost)
+        _, traj, stats, batch = learner.collect(runner, key)
         return runner, traj, stats, batch
 
     return learner, go(jax.random.PRNGKey(1))
