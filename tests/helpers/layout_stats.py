@@ -171,8 +171,3 @@ def compare_all(label, ours, ref) -> dict:
 def id_param(env_id, default):
     """``env_id`` as a pytest parameter, marked slow unless it is in ``default``."""
     return pytest.param(env_id, id=env_id, marks=() if env_id in default else pytest.mark.slow)
-
-
-def coords(width, height):
-    """``(xs, ys)`` integer coordinate planes of shape ``(W, H)``."""
-    return np.meshgrid(np.arange(width), np.arange(height), indexing="ij")

@@ -42,7 +42,6 @@ from helpers.layout_stats import (
     cell_id,
     compare_all,
     compare_distributions,
-    coords,
     id_param,
     jax_reset_states,
     minigrid_resets,
@@ -73,6 +72,7 @@ from jaxgrid.constants import (
     TOGGLE,
     WALL,
 )
+from jaxgrid.grid import coords
 from jaxgrid.levels import Fetch, FixedLevel, GoToDoor, GoToObject, PutNear
 from jaxgrid.levels.keys import mission
 from jaxgrid.levels.missions import IDS, PutNearMission

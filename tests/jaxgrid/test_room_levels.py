@@ -42,7 +42,6 @@ from helpers.layout_stats import (
     cell_id,
     compare_all,
     compare_distributions,
-    coords,
     id_param,
     jax_reset_states,
     jax_resets,
@@ -72,6 +71,7 @@ from jaxgrid.constants import (
     TOGGLE,
     WALL,
 )
+from jaxgrid.grid import coords
 from jaxgrid.levels import FixedLevel, LockedRoom, MultiRoom, RedBlueDoors
 from jaxgrid.levels import rooms as rooms_module
 from jaxgrid.levels.rooms import IDS
