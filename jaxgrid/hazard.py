@@ -17,10 +17,10 @@ zone (every budget, trigger and order ignored: a sufficient condition for a run 
 violation) and every trigger cell the constraint names exists; after
 :data:`TRIES_PER_SENTENCE` failed layouts another sentence of the same type is drawn (types
 stay uniform; within a type, sentences that few layouts satisfy become rarer), and after
-:data:`MAX_TRIES` the last layout is kept. The agent never starts inside a zone. So that budgets and sequences bind, most strips
-(:data:`NAMED_SHARE`) are of the ground hazard a budget or sequential clause names first. The
-monitor (:mod:`jaxgrid.monitor`) lives in the state; ``info`` reports ``violation``,
-``cost``, ``constraint_type`` (index into
+:data:`MAX_TRIES` the last layout is kept. The agent never starts inside a zone. So that
+budgets and sequences bind, most strips (:data:`NAMED_SHARE`) are of the ground hazard a
+budget or sequential clause names first. The monitor (:mod:`jaxgrid.monitor`) lives in the
+state; ``info`` reports ``violation``, ``cost``, ``constraint_type`` (index into
 :data:`jaxgrid.hazard_language.CONSTRAINT_TYPES`) and ``template_id`` (the first clause's).
 
 ``sentences`` replaces the drawn constraints with a fixed list (each episode draws one of
@@ -44,6 +44,7 @@ from jaxgrid.constants import (
     BLUE,
     CLOSED,
     DOOR,
+    EMPTY_CELL,
     FLOOR,
     GOAL,
     GOAL_CELL,
@@ -51,13 +52,12 @@ from jaxgrid.constants import (
     KEY,
     LAVA,
     LAVA_CELL,
-    LOCKED,
     WALL_CELL,
     YELLOW,
 )
 from jaxgrid.dynamics import get_cell, transition
 from jaxgrid.environment import Environment, check_action
-from jaxgrid.oracle import distance_field
+from jaxgrid.oracle import distance_field, passable_cells
 from jaxgrid.scenarios import DOOR_COLOURS, SPLITS, _distinct_colours
 from jaxgrid.types import State, TimeStep
 
@@ -422,13 +422,12 @@ class HazardRooms(Environment):
 def solvable(grid: jax.Array, agent: jax.Array, forbidden: jax.Array) -> jax.Array:
     """Whether the goal can be reached from ``agent`` without entering ``forbidden`` cells.
 
-    Doors that are closed count as passable (they can be opened), locked ones do not; lava and
-    floor are walkable. The agent's own cell and the goal's must be allowed.
+    The oracle's cells (:func:`jaxgrid.oracle.passable_cells` with empty hands, no forbidden
+    door colour, lava walkable): closed doors count as passable (they can be opened), locked
+    ones do not. The agent's own cell and the goal's must be allowed.
     """
     kind = grid[..., 0]
-    walkable = (kind == 1) | (kind == FLOOR) | (kind == LAVA) | (kind == GOAL)
-    walkable = walkable | ((kind == DOOR) & (grid[..., 2] != LOCKED))
-    passable = walkable & ~forbidden
+    passable = passable_cells(grid, jnp.asarray(EMPTY_CELL), -1, avoid_lava=False) & ~forbidden
     dist = distance_field((kind == GOAL) & ~forbidden, passable)
     inf = grid.shape[0] * grid.shape[1] + 1
     return (dist[agent[0], agent[1]] < inf) & ~forbidden[agent[0], agent[1]]
