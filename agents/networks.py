@@ -234,8 +234,13 @@ def apply_policy(network: ActorCritic, params, lang_table, image, direction, sen
     The row is selected by a one-hot matmul rather than a gather: its gradient is a matmul,
     not a scatter (slow on CPU).
     """
-    lang = jax.nn.one_hot(sentence, lang_table.shape[0], dtype=lang_table.dtype) @ lang_table
+    lang = table_rows(lang_table, sentence)
     return network.apply(params, image, direction, lang, memory, method=ActorCritic.step)
+
+
+def table_rows(lang_table: jax.Array, sentence: jax.Array) -> jax.Array:
+    """Rows ``sentence`` (B,) of ``lang_table`` (K, D), selected by a one-hot matmul."""
+    return jax.nn.one_hot(sentence, lang_table.shape[0], dtype=lang_table.dtype) @ lang_table
 
 
 def start_memory(network: ActorCritic, batch: int) -> jax.Array:

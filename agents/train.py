@@ -33,7 +33,13 @@ from agents import rollout
 from agents.config import SWEEPABLE, PPOConfig, check_checker
 from agents.evaluation import play_episodes, summarise
 from agents.losses import gae, ppo_loss, shuffle
-from agents.networks import ActorCritic, apply_policy, start_memory, table_features
+from agents.networks import (
+    ActorCritic,
+    apply_policy,
+    start_memory,
+    table_features,
+    table_rows,
+)
 from agents.rollout import EnvCarry, Transition
 from agents.shield import make_shield, mask_logits
 from jaxgrid import language
@@ -106,7 +112,7 @@ class Learner(struct.PyTreeNode):
         lang_table = self.lang_table(params)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
         rows = flat(mb["sentence"])
-        lang = jax.nn.one_hot(rows, lang_table.shape[0], dtype=lang_table.dtype) @ lang_table
+        lang = table_rows(lang_table, rows)
         net = self.network
         feats = net.apply(
             params, flat(mb["image"]), flat(mb["direction"]), lang, method=ActorCritic.observe
