@@ -352,13 +352,8 @@ _SENTENCE = _alt(
 )
 
 
-def normalize(sentence: str) -> list[str]:
-    """Lower-case words; punctuation separates words (as :func:`jaxgrid.language.normalize`)."""
-    if isinstance(sentence, str) and len(sentence) > language.MAX_CHARS:
-        raise ValueError(
-            f"constraint too long: {len(sentence)} characters (at most {language.MAX_CHARS})"
-        )
-    return language.normalize(sentence)
+#: Lower-case words, punctuation as separators; the paper language's rules and checks.
+normalize = language.normalize
 
 
 def _check_words(words: list[str], sentence: str) -> None:
