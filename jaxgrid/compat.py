@@ -96,6 +96,7 @@ def from_minigrid(
         agent_start=pos,
         agent_dir=int(env.agent_dir),
         carrying=carrying,
+        mission_string=str(env.mission),
     )
     state = jenv.generate(jax.random.PRNGKey(0) if key is None else key)
     state = state.replace(step_count=jnp.asarray(env.step_count, jnp.int32))
@@ -177,11 +178,21 @@ def _mission_extras(env, native):
         return about(env.targetType, env.target_color, env.target_pos)
     if native is missions.Fetch:  # FetchEnv keeps the target's type and colour only
         where = _first_cell_holding(env, env.targetType, env.targetColor)
-        return about(env.targetType, env.targetColor, where)
+        target = about(env.targetType, env.targetColor, where)
+        return missions.FetchMission(**vars(target), phrasing=_fetch_phrasing(env))
     return missions.PutNearMission(
         move=about(env.move_type, env.moveColor, env.move_pos),
         target=about(env.target_type, env.target_color, env.target_pos),
     )
+
+
+def _fetch_phrasing(env) -> jax.Array:
+    """Which of ``FETCH_PHRASINGS`` leads ``env.mission``, as an int32 index. The native
+    mission spells the target from the task the step reads (``targetType``/``targetColor``)."""
+    leads = [lead for lead in missions.FETCH_PHRASINGS if env.mission.startswith(lead + " ")]
+    if not leads:
+        raise ValueError(f"FetchEnv.mission {env.mission!r} starts with none of its phrasings")
+    return jnp.int32(missions.FETCH_PHRASINGS.index(leads[0]))
 
 
 def _convert_native(env, native, grid, carrying, pos, key):

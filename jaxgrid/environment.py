@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxgrid import mission as mission_words
 from jaxgrid.constants import EMPTY_CELL, NUM_ACTIONS
 from jaxgrid.dynamics import transition
 from jaxgrid.observation import egocentric_view
@@ -24,7 +25,11 @@ class Environment(struct.PyTreeNode):
     distribution) and may extend :meth:`observe` and :meth:`step`; a subclass whose layouts
     need more room than a 1x1 grid says so in :meth:`min_size`, which construction enforces.
     An overriding ``step`` should call :func:`check_action` first, as :meth:`step` does.
+    A level states MiniGrid's mission in :attr:`MISSION`, or in :meth:`mission` when the
+    mission names the episode's task.
     """
+
+    MISSION = "get to the green goal square"  # MiniGridEnv's most common mission
 
     width: int = struct.field(pytree_node=False)
     height: int = struct.field(pytree_node=False)
@@ -86,6 +91,20 @@ class Environment(struct.PyTreeNode):
             self.see_through_walls,
         )
         return {"image": image, "direction": state.agent_dir}
+
+    def mission(self, state: State) -> jax.Array:
+        """MiniGrid's mission for ``state``'s episode: int32 ``(MAX_WORDS,)`` token ids of
+        :mod:`jaxgrid.mission`, fixed for the episode; ``jax.vmap`` it for a batch."""
+        return mission_words.fill(self.MISSION)
+
+    def mission_text(self, state: State) -> str:
+        """The mission of one (unbatched) ``state`` as MiniGrid's string."""
+        if jnp.ndim(state.step_count) != 0:
+            raise ValueError(
+                "mission_text takes one state; for a batch, decode each row of "
+                "jax.vmap(env.mission)(states) with jaxgrid.mission.decode"
+            )
+        return mission_words.decode(jax.device_get(self.mission(state)))
 
     def info(self, state: State) -> dict:
         """Extra per-step information; identical structure at reset and step."""

@@ -4,7 +4,9 @@
 every step and selects it where the episode ended. :class:`BatchedAutoReset` steps a batch
 and generates and observes fresh episodes only for the envs whose episode ended (through
 :func:`masked_map`), with the same bits as ``vmap(AutoReset(env).step)``; most steps end
-few episodes, so it is the one to use in training loops.
+few episodes, so it is the one to use in training loops. :class:`WithMission` adds the
+mission's token ids to every observation, for agents that read it (BabyAI-style); it goes
+inside the auto-reset wrappers.
 """
 
 from __future__ import annotations
@@ -16,6 +18,38 @@ from jax import lax
 
 from jaxgrid.environment import Environment
 from jaxgrid.types import State, TimeStep
+
+
+class WithMission(struct.PyTreeNode):
+    """``env`` with ``observation["mission"]``: int32 ``(MAX_WORDS,)`` token ids of
+    :meth:`~jaxgrid.environment.Environment.mission` (decode with :func:`jaxgrid.mission.decode`).
+
+    Wrap before auto-reset, ``BatchedAutoReset(WithMission(env))``, so fresh episodes carry
+    their own mission.
+    """
+
+    env: Environment
+
+    def __getattr__(self, name):
+        if name == "env":
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+    def generate(self, key: jax.Array) -> State:
+        return self.env.generate(key)
+
+    def observe(self, state: State) -> dict:
+        return {**self.env.observe(state), "mission": self.env.mission(state)}
+
+    def reset(self, key: jax.Array) -> tuple[State, TimeStep]:
+        return self._with_mission(*self.env.reset(key))
+
+    def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
+        return self._with_mission(*self.env.step(state, action))
+
+    def _with_mission(self, state, ts):
+        obs = {**ts.observation, "mission": self.env.mission(state)}
+        return state, ts.replace(observation=obs)
 
 
 class AutoReset(struct.PyTreeNode):

@@ -53,6 +53,8 @@ class Empty(Environment):
 class DoorKey(Environment):
     """``DoorKeyEnv``: a locked yellow door in a random wall, its key on the agent's side."""
 
+    MISSION = "use the key to open the door and then get to the goal"
+
     def min_size(self):
         # Wall, the agent's column, the door's wall, the goal's column, wall; the agent's
         # column holds agent and key, and the door's row is drawn from 1 .. height - 3.
@@ -80,6 +82,8 @@ class DoorKey(Environment):
 
 class LavaGap(Environment):
     """``LavaGapEnv``: a vertical lava strip with a one-cell gap; agent at (1, 1) facing right."""
+
+    MISSION = "avoid the lava and get to the green goal square"
 
     def min_size(self):
         # The strip's column is drawn from 2 .. width - 3: between the agent and the goal.

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxgrid import mission as mission_words
 from jaxgrid.constants import DOOR, EMPTY, FLOOR, GOAL, LAVA, OBJECT_NAMES, OPEN
 from jaxgrid.environment import Environment
 from jaxgrid.types import State
@@ -19,12 +20,16 @@ class FixedLevel(Environment):
     :func:`jaxgrid.ascii.from_ascii` or :func:`jaxgrid.compat.from_minigrid` rather than by hand.
     ``agent_dir=-1`` draws a random direction at each reset. The agent must start inside the
     grid on a cell it can stand on (empty, floor, goal, lava or an open door).
+    ``mission_string`` is the level's mission (a converted env's own; ``None``: the default
+    :attr:`MISSION`); its words outside :mod:`jaxgrid.mission`'s vocabulary encode as ``<unk>``
+    and :meth:`mission_text` returns it verbatim.
     """
 
     layout: bytes = struct.field(pytree_node=False, default=b"")
     agent_start: tuple[int, int] = struct.field(pytree_node=False, default=(1, 1))
     agent_dir: int = struct.field(pytree_node=False, default=0)
     carrying: tuple[int, int, int] = struct.field(pytree_node=False, default=(1, 0, 0))
+    mission_string: str | None = struct.field(pytree_node=False, default=None)
 
     def __post_init__(self):
         super().__post_init__()
@@ -49,6 +54,13 @@ class FixedLevel(Environment):
             )
         if self.agent_dir not in (-1, 0, 1, 2, 3):
             raise ValueError(f"FixedLevel.agent_dir must be 0..3 or -1, got {self.agent_dir!r}")
+
+    def mission(self, state: State) -> jax.Array:
+        text = self.MISSION if self.mission_string is None else self.mission_string
+        return jnp.asarray(mission_words.encode(text, strict=False))
+
+    def mission_text(self, state: State) -> str:
+        return self.MISSION if self.mission_string is None else self.mission_string
 
     @property
     def grid(self) -> np.ndarray:

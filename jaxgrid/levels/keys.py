@@ -24,6 +24,7 @@ import numpy as np
 from flax import struct
 
 from jaxgrid import grid as G
+from jaxgrid import mission as mission_words
 from jaxgrid.constants import (
     BALL,
     BOX,
@@ -196,6 +197,11 @@ class RoomLevel(Environment):
     def rows_cols(self) -> tuple[int, int]:
         return self.NUM_ROWS, self.NUM_COLS
 
+    def mission(self, state: State) -> jax.Array:
+        # f"pick up the {obj.color} {obj.type}"
+        task = state.extras
+        return mission_words.fill("pick up the {colour} {kind}", colour=task.colour, kind=task.kind)
+
     def __post_init__(self):
         name = type(self).__name__
         s = self.room_size
@@ -262,6 +268,11 @@ class Unlock(RoomLevel):
     ``room_size`` 6 (MiniGrid's only one; 4 or more is accepted), ``max_steps`` 288.
     Placements sample uniformly among the cells ``place_obj``/``place_agent`` would accept.
     """
+
+    MISSION = "open the door"
+
+    def mission(self, state: State) -> jax.Array:
+        return mission_words.fill(self.MISSION)
 
     def succeeded(self, state: State, action: jax.Array) -> jax.Array:
         # if action == self.actions.toggle: if self.door.is_open:

@@ -21,8 +21,9 @@ loops forever there; such sizes are refused here (each class's ``min_size``).
 The levels override ``MiniGridEnv.step`` in MiniGrid and here alike: each class applies
 MiniGrid's rule after :func:`jaxgrid.dynamics.transition` (see :meth:`MissionLevel.rule`).
 Success pays ``1 - 0.9 * step_count / max_steps``. The task is kept in ``state.extras``: a
-:class:`~jaxgrid.levels.keys.Mission` (GoToDoor, GoToObject, Fetch) or a
-:class:`PutNearMission`. As in MiniGrid, stepping on after termination applies the rule
+:class:`~jaxgrid.levels.keys.Mission` (GoToDoor, GoToObject), a :class:`FetchMission` or a
+:class:`PutNearMission`, from which :meth:`~jaxgrid.environment.Environment.mission` spells
+MiniGrid's mission string. As in MiniGrid, stepping on after termination applies the rule
 again. Actions outside ``0..6`` act as ``done`` (MiniGrid raises on them), for the rule too.
 :data:`IDS` maps MiniGrid's ids, with MiniGrid's per-id defaults, to factories.
 """
@@ -36,6 +37,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxgrid import grid as G
+from jaxgrid import mission as mission_words
 from jaxgrid.constants import (
     BALL,
     BOX,
@@ -58,6 +60,18 @@ from jaxgrid.types import State, TimeStep
 NUM_COLOURS = 6  # MiniGrid's COLOR_NAMES
 KEY_BALL_BOX = (KEY, BALL, BOX)  # types = ["key", "ball", "box"]
 KEY_BALL = (KEY, BALL)  # self.obj_types = ["key", "ball"] (Fetch)
+
+
+@struct.dataclass
+class FetchMission(Mission):
+    """Fetch's task: the target's :class:`Mission` and which of MiniGrid's five phrasings
+    (:data:`FETCH_PHRASINGS`) the mission string uses, int32."""
+
+    phrasing: jax.Array
+
+
+# FetchEnv: idx = self._rand_int(0, 5); "get a %s", "go get a %s", ... % descStr
+FETCH_PHRASINGS = ("get a", "go get a", "fetch a", "go fetch a", "you must fetch a")
 
 
 @struct.dataclass
@@ -174,6 +188,9 @@ class GoToDoor(_GoTo):
     walks through a door on the grid's border and faces out of the grid makes MiniGrid raise
     (``Grid.get``); here the outside reads as a wall.
     """
+
+    def mission(self, state: State) -> jax.Array:
+        return mission_words.fill("go to the {colour} door", colour=state.extras.colour)
 
     def min_size(self):
         return 5, 5, "GoToDoorEnv asserts size >= 5: doors at least two cells from each corner"
@@ -312,6 +329,10 @@ class GoToObject(_ObjectRoom, _GoTo):
     into a corner away from the target, in MiniGrid's layouts and here alike.
     """
 
+    def mission(self, state: State) -> jax.Array:
+        task = state.extras
+        return mission_words.fill("go to the {colour} {kind}", colour=task.colour, kind=task.kind)
+
     def generate(self, key: jax.Array) -> State:
         grid, kinds, colours, cells, agent, direction, u = self._layout(key, 1)
         target = G.randint(u[0], 0, self.num_objs)  # objIdx = _rand_int(0, len(objs))
@@ -327,11 +348,10 @@ class Fetch(_ObjectRoom):
     Each object is a uniform (type, colour) pair among keys and balls of the six colours, the
     same pair possibly more than once; its cell is uniform among the empty ones; the agent
     stands on a uniform empty cell with a uniform direction; the mission names the type and
-    colour of a uniform object (and one of five phrasings, a draw that only changes MiniGrid's
-    mission string and is not made here). ``state.extras`` is a
-    :class:`~jaxgrid.levels.keys.Mission`: that type and colour, and the cell of the object
-    drawn (after a conversion, the first cell in MiniGrid's grid order holding such an
-    object, ``(-1, -1)`` if none).
+    colour of a uniform object, in one of five uniform phrasings. ``state.extras`` is a
+    :class:`FetchMission`: that type and colour, the cell of the object drawn (after a
+    conversion, the first cell in MiniGrid's grid order holding such an object, ``(-1, -1)``
+    if none) and the phrasing.
 
     Step (``FetchEnv.step``): after any step that leaves the agent carrying something, the
     episode terminates, with the success reward if the carried object's type and colour are
@@ -356,11 +376,21 @@ class Fetch(_ObjectRoom):
         reward = jnp.where(holding, jnp.where(match, self.success_reward(after), 0.0), reward)
         return reward, terminated | holding
 
+    def mission(self, state: State) -> jax.Array:
+        task = state.extras
+        slots = dict(colour=task.colour, kind=task.kind)
+        phrased = [
+            mission_words.fill(f"{lead} {{colour}} {{kind}}", **slots) for lead in FETCH_PHRASINGS
+        ]
+        return mission_words.choose(task.phrasing, phrased)
+
     def generate(self, key: jax.Array) -> State:
-        grid, kinds, colours, cells, agent, direction, u = self._layout(key, 1)
+        grid, kinds, colours, cells, agent, direction, u = self._layout(key, 2)
         target = G.randint(u[0], 0, self.num_objs)  # objs[self._rand_int(0, len(objs))]
         pick = lambda a: _select(target, a)
-        extras = mission(pick(kinds), pick(colours), pick(cells))
+        phrasing = G.randint(u[1], 0, len(FETCH_PHRASINGS))  # idx = self._rand_int(0, 5)
+        target = mission(pick(kinds), pick(colours), pick(cells))
+        extras = FetchMission(**vars(target), phrasing=phrasing.astype(jnp.int32))
         return self.init_state(grid, agent, direction, key, extras)
 
 
@@ -402,6 +432,16 @@ class PutNear(_ObjectRoom):
         near = jnp.max(jnp.abs(front_pos(after) - m.target.pos)) <= 1
         reward = jnp.where(put_down & near, self.success_reward(after), reward)
         return reward, terminated | wrong | dropping
+
+    def mission(self, state: State) -> jax.Array:
+        move, target = state.extras.move, state.extras.target
+        return mission_words.fill(
+            "put the {move_colour} {move_kind} near the {target_colour} {target_kind}",
+            move_colour=move.colour,
+            move_kind=move.kind,
+            target_colour=target.colour,
+            target_kind=target.kind,
+        )
 
     def generate(self, key: jax.Array) -> State:
         grid, kinds, colours, cells, agent, direction, u = self._layout(key, 2)

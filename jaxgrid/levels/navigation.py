@@ -19,6 +19,7 @@ import numpy as np
 from flax import struct
 
 from jaxgrid import grid as G
+from jaxgrid import mission as mission_words
 from jaxgrid.constants import EMPTY, EMPTY_CELL, GOAL_CELL, LAVA_CELL, WALL_CELL
 from jaxgrid.environment import Environment
 from jaxgrid.types import State
@@ -76,6 +77,8 @@ class FourRooms(Environment):
     as ``FourRoomsEnv(agent_pos=..., goal_pos=...)`` does. MiniGrid only builds 19x19; other odd
     sizes follow the same construction.
     """
+
+    MISSION = "reach the goal"
 
     agent_start: tuple[int, int] | None = struct.field(pytree_node=False, default=None)
     goal_start: tuple[int, int] | None = struct.field(pytree_node=False, default=None)
@@ -162,6 +165,11 @@ class Crossing(Environment):
             )
         super().__post_init__()
         _require_odd(self, "rivers lie on the even rows and columns strictly inside the walls")
+
+    def mission(self, state: State) -> jax.Array:
+        # _gen_mission_lava / _gen_mission_wall
+        lead = "avoid the lava" if self.obstacle == "lava" else "find the opening"
+        return mission_words.fill(f"{lead} and get to the green goal square")
 
     def min_size(self):
         # An odd size s has s - 3 candidate rivers (its even rows and columns 2 .. s - 3); 5 is

@@ -30,6 +30,7 @@ import numpy as np
 from flax import struct
 
 from jaxgrid import grid as G
+from jaxgrid import mission as mission_words
 from jaxgrid.constants import (
     BLUE,
     CLOSED,
@@ -106,6 +107,8 @@ class MultiRoom(Environment):
     forever, gets the longest chain found in the 1024 attempts (the first of that length, as
     MiniGrid's ``roomList``) and fewer rooms than asked.
     """
+
+    MISSION = "traverse the rooms to get to the goal"
 
     min_num_rooms: int = struct.field(pytree_node=False, default=6)
     max_num_rooms: int = struct.field(pytree_node=False, default=6)
@@ -300,6 +303,15 @@ class MultiRoom(Environment):
 # --------------------------------------------------------------------------- LockedRoom
 
 
+@struct.dataclass
+class KeyRoom:
+    """LockedRoom's mission: the locked door's colour (its key's) and the colour of the door
+    of the room holding the key, int32 scalars. The key can move, so both are kept."""
+
+    locked_colour: jax.Array
+    key_room_colour: jax.Array
+
+
 class LockedRoom(Environment):
     """``LockedRoomEnv``: six rooms off a central hallway, one locked with the goal inside;
     the key is in another room.
@@ -309,7 +321,8 @@ class LockedRoom(Environment):
     entered by a door three cells below the room's top wall. The locked room is uniform among
     the six, the goal uniform in it; the six doors take a uniform permutation of the six
     colours; the key (of the locked door's colour) lies uniformly in a uniform other room; the
-    agent stands uniformly in the hallway with a uniform direction. Goal and key are drawn from
+    agent stands uniformly in the hallway with a uniform direction; ``state.extras`` is a
+    :class:`KeyRoom`, the colours the mission names. Goal and key are drawn from
     ``LockedRoom.rand_pos``'s rectangle (rooms of ``height // 3 + 1`` rows). MiniGrid builds
     only square sizes; here the width must be odd and the height not a multiple of 3 (other
     sizes put MiniGrid's goal or key on a wall), at least 9 x 13 (a door below a room's top
@@ -355,6 +368,16 @@ class LockedRoom(Environment):
             grid[right:, n * (h // 3)] = WALL_CELL
         return grid
 
+    def mission(self, state: State) -> jax.Array:
+        task = state.extras
+        return mission_words.fill(
+            "get the {key_colour} key from the {room_colour} room, unlock the {door_colour} "
+            "door and go to the goal",
+            key_colour=task.locked_colour,
+            room_colour=task.key_room_colour,
+            door_colour=task.locked_colour,
+        )
+
     def generate(self, key: jax.Array) -> State:
         w, h = self.width, self.height
         tops, sizes, doors = (jnp.asarray(a) for a in self.rooms())
@@ -386,7 +409,8 @@ class LockedRoom(Environment):
         left, right = w // 2 - 2, w // 2 + 2
         hallway = (xs >= left) & (xs < right)
         agent = G.sample_cell(u[12], G.is_empty(grid) & hallway)
-        return self.init_state(grid, agent, G.randint(u[13], 0, 4), key)
+        task = KeyRoom(key_colour, _one_hot_select(key_room, colours))
+        return self.init_state(grid, agent, G.randint(u[13], 0, 4), key, task)
 
 
 # ------------------------------------------------------------------------- RedBlueDoors
@@ -424,6 +448,8 @@ class RedBlueDoors(Environment):
     in ``state.extras`` (:class:`DoorPair`). Defaults (``MiniGrid-RedBlueDoors-8x8-v0``):
     16 x 8, ``max_steps`` 1280.
     """
+
+    MISSION = "open the red door then the blue door"
 
     def min_size(self):
         # A room of one interior cell, and a free column between each door and the outer wall:
