@@ -8,7 +8,7 @@ import numpy as np
 
 from jaxgrid.constants import COLOR_TO_IDX, EMPTY_CELL, OBJECT_TO_IDX
 from jaxgrid.environment import Environment
-from jaxgrid.levels import keys, missions, rooms
+from jaxgrid.levels import keys, memory, missions, rooms
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.types import State, TimeStep
 
@@ -52,13 +52,15 @@ def from_minigrid(
     and ``PutNearEnv`` (these exact classes) convert to their native levels
     (:mod:`jaxgrid.levels.missions`), with the attributes their ``step`` reads in
     ``state.extras``: ``target_pos`` and the target's colour (and type), Fetch's
-    ``targetType``/``targetColor``, PutNear's object to move and ``target_pos``.
+    ``targetType``/``targetColor``, PutNear's object to move and ``target_pos``. ``MemoryEnv``
+    converts to :class:`~jaxgrid.levels.memory.Memory` with ``success_pos`` and
+    ``failure_pos``.
 
-    Any other class that overrides ``step`` (DynamicObstacles moves its balls, Memory,
-    subclasses of the families above, ...) has rules of its own that are not reproduced, so it
+    Any other class that overrides ``step`` (DynamicObstacles moves its balls, subclasses of
+    the families above, ...) has rules of its own that are not reproduced, so it
     raises ``ValueError`` naming the class, unless ``base_step=True`` asks for its layout under
     ``MiniGridEnv.step``'s rules alone; ``base_step=True`` gives that ``FixedLevel`` for the
-    nine families too. An env that is not a MiniGrid env raises too.
+    ten families too. An env that is not a MiniGrid env raises too.
     """
     from minigrid.minigrid_env import MiniGridEnv  # minigrid is needed here only
 
@@ -111,6 +113,7 @@ def _native_family(env):
         GoToDoorEnv,
         GoToObjectEnv,
         KeyCorridorEnv,
+        MemoryEnv,
         PutNearEnv,
         RedBlueDoorEnv,
         UnlockEnv,
@@ -127,6 +130,7 @@ def _native_family(env):
         GoToObjectEnv: missions.GoToObject,
         FetchEnv: missions.Fetch,
         PutNearEnv: missions.PutNear,
+        MemoryEnv: memory.Memory,
     }
     native = families.get(type(env))
     if native is keys.KeyCorridor and env.obj_type != "ball":
@@ -203,6 +207,12 @@ def _convert_native(env, native, grid, carrying, pos, key):
     elif native in (missions.GoToObject, missions.Fetch, missions.PutNear):
         jenv = native(**_settings(env), num_objs=int(env.numObjs))
         extras = _mission_extras(env, native)
+    elif native is memory.Memory:
+        jenv = native(**_settings(env), random_length=bool(env.random_length))
+        extras = memory.MemoryTask(
+            success=jnp.asarray(env.success_pos, jnp.int32),
+            failure=jnp.asarray(env.failure_pos, jnp.int32),
+        )
     elif native is rooms.RedBlueDoors:
         jenv = native(**_settings(env))
         extras = rooms.DoorPair(

@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 from jaxgrid.environment import Environment
 from jaxgrid.hazard import HazardRooms
-from jaxgrid.levels import DoorKey, Empty, LavaGap, keys, missions, navigation, rooms
+from jaxgrid.levels import DoorKey, Empty, LavaGap, keys, memory, missions, navigation, rooms
 from jaxgrid.scenarios import ThreeRoomsKey, TwoRooms
 
 
@@ -53,6 +53,7 @@ _BUILTIN: dict[str, Callable[[], Environment]] = {
     **keys.IDS,
     **rooms.IDS,
     **missions.IDS,
+    **memory.IDS,
     **_scenarios(),
 }
 _USER: dict[str, Callable[[], Environment]] = {}

@@ -3,6 +3,7 @@
 from jaxgrid.levels.classic import DoorKey, Empty, LavaGap
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.levels.keys import BlockedUnlockPickup, KeyCorridor, Unlock, UnlockPickup
+from jaxgrid.levels.memory import Memory
 from jaxgrid.levels.missions import Fetch, GoToDoor, GoToObject, PutNear
 from jaxgrid.levels.navigation import Crossing, DistShift, FourRooms
 from jaxgrid.levels.rooms import LockedRoom, MultiRoom, RedBlueDoors
@@ -21,6 +22,7 @@ __all__ = [
     "KeyCorridor",
     "LavaGap",
     "LockedRoom",
+    "Memory",
     "MultiRoom",
     "PutNear",
     "RedBlueDoors",
