@@ -7,7 +7,17 @@ from collections.abc import Callable
 
 from jaxgrid.environment import Environment
 from jaxgrid.hazard import HazardRooms
-from jaxgrid.levels import DoorKey, Empty, LavaGap, keys, memory, missions, navigation, rooms
+from jaxgrid.levels import (
+    DoorKey,
+    Empty,
+    LavaGap,
+    keys,
+    memory,
+    missions,
+    navigation,
+    playground,
+    rooms,
+)
 from jaxgrid.scenarios import ThreeRoomsKey, TwoRooms
 
 
@@ -54,6 +64,7 @@ _BUILTIN: dict[str, Callable[[], Environment]] = {
     **rooms.IDS,
     **missions.IDS,
     **memory.IDS,
+    **playground.IDS,
     **_scenarios(),
 }
 _USER: dict[str, Callable[[], Environment]] = {}

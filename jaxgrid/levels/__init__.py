@@ -6,6 +6,7 @@ from jaxgrid.levels.keys import BlockedUnlockPickup, KeyCorridor, Unlock, Unlock
 from jaxgrid.levels.memory import Memory
 from jaxgrid.levels.missions import Fetch, GoToDoor, GoToObject, PutNear
 from jaxgrid.levels.navigation import Crossing, DistShift, FourRooms
+from jaxgrid.levels.playground import Playground
 from jaxgrid.levels.rooms import LockedRoom, MultiRoom, RedBlueDoors
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "LockedRoom",
     "Memory",
     "MultiRoom",
+    "Playground",
     "PutNear",
     "RedBlueDoors",
     "Unlock",
