@@ -8,7 +8,7 @@ import numpy as np
 
 from jaxgrid.constants import COLOR_TO_IDX, EMPTY_CELL, OBJECT_TO_IDX
 from jaxgrid.environment import Environment
-from jaxgrid.levels import keys, memory, missions, rooms
+from jaxgrid.levels import dynamic, keys, memory, missions, rooms
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.types import State, TimeStep
 
@@ -54,13 +54,14 @@ def from_minigrid(
     ``state.extras``: ``target_pos`` and the target's colour (and type), Fetch's
     ``targetType``/``targetColor``, PutNear's object to move and ``target_pos``. ``MemoryEnv``
     converts to :class:`~jaxgrid.levels.memory.Memory` with ``success_pos`` and
-    ``failure_pos``.
+    ``failure_pos``; ``DynamicObstaclesEnv`` to :class:`~jaxgrid.levels.dynamic.DynamicObstacles`
+    with the cells of ``obstacles``, in order.
 
-    Any other class that overrides ``step`` (DynamicObstacles moves its balls, subclasses of
-    the families above, ...) has rules of its own that are not reproduced, so it
-    raises ``ValueError`` naming the class, unless ``base_step=True`` asks for its layout under
-    ``MiniGridEnv.step``'s rules alone; ``base_step=True`` gives that ``FixedLevel`` for the
-    ten families too. An env that is not a MiniGrid env raises too.
+    Any other class that overrides ``step`` (subclasses of the families above, ...) has rules
+    of its own that are not reproduced, so it raises ``ValueError`` naming the class, unless
+    ``base_step=True`` asks for its layout under ``MiniGridEnv.step``'s rules alone;
+    ``base_step=True`` gives that ``FixedLevel`` for the eleven families too. An env that is
+    not a MiniGrid env raises too.
     """
     from minigrid.minigrid_env import MiniGridEnv  # minigrid is needed here only
 
@@ -109,6 +110,7 @@ def _native_family(env):
     """The native level class for ``env``'s family, or None (see :func:`from_minigrid`)."""
     from minigrid.envs import (
         BlockedUnlockPickupEnv,
+        DynamicObstaclesEnv,
         FetchEnv,
         GoToDoorEnv,
         GoToObjectEnv,
@@ -131,6 +133,7 @@ def _native_family(env):
         FetchEnv: missions.Fetch,
         PutNearEnv: missions.PutNear,
         MemoryEnv: memory.Memory,
+        DynamicObstaclesEnv: dynamic.DynamicObstacles,
     }
     native = families.get(type(env))
     if native is keys.KeyCorridor and env.obj_type != "ball":
@@ -207,6 +210,16 @@ def _convert_native(env, native, grid, carrying, pos, key):
     elif native in (missions.GoToObject, missions.Fetch, missions.PutNear):
         jenv = native(**_settings(env), num_objs=int(env.numObjs))
         extras = _mission_extras(env, native)
+    elif native is dynamic.DynamicObstacles:
+        start = env.agent_start_pos
+        jenv = native(
+            **_settings(env),
+            n_obstacles=len(env.obstacles),
+            agent_start=None if start is None else tuple(int(c) for c in start),
+            agent_start_dir=int(env.agent_start_dir),
+        )
+        cells = [_cell_of(env, ball, f"obstacles[{i}]") for i, ball in enumerate(env.obstacles)]
+        extras = jnp.asarray(cells, jnp.int32).reshape(len(cells), 2)
     elif native is memory.Memory:
         jenv = native(**_settings(env), random_length=bool(env.random_length))
         extras = memory.MemoryTask(

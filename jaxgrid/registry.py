@@ -11,6 +11,7 @@ from jaxgrid.levels import (
     DoorKey,
     Empty,
     LavaGap,
+    dynamic,
     keys,
     memory,
     missions,
@@ -65,6 +66,7 @@ _BUILTIN: dict[str, Callable[[], Environment]] = {
     **missions.IDS,
     **memory.IDS,
     **playground.IDS,
+    **dynamic.IDS,
     **_scenarios(),
 }
 _USER: dict[str, Callable[[], Environment]] = {}

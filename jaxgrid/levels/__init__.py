@@ -1,6 +1,7 @@
 """Level generators: MiniGrid's classic levels and fixed layouts (ASCII maps, converted envs)."""
 
 from jaxgrid.levels.classic import DoorKey, Empty, LavaGap
+from jaxgrid.levels.dynamic import DynamicObstacles
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.levels.keys import BlockedUnlockPickup, KeyCorridor, Unlock, UnlockPickup
 from jaxgrid.levels.memory import Memory
@@ -14,6 +15,7 @@ __all__ = [
     "Crossing",
     "DistShift",
     "DoorKey",
+    "DynamicObstacles",
     "Empty",
     "Fetch",
     "FixedLevel",
