@@ -3,9 +3,10 @@
 The harness of :mod:`benchmarks.env_throughput` (random actions, auto-reset, ``lax.scan`` of
 ``vmap(step)``, compile timed apart, best of repeats), on one id per family at one batch size
 (4096 envs by default): Empty, DoorKey, FourRooms, KeyCorridor, LavaGap, SimpleCrossing,
-DistShift and GoToDoor where both libraries have the id. NAVIX runs each level with
-MiniGrid's ``max_steps``. Its observation is the full symbolic grid (no egocentric crop, no
-occlusion), less work per step than jaxgrid's MiniGrid view; the ratio is quoted as measured.
+DistShift, GoToDoor and Dynamic-Obstacles where both libraries have the id. NAVIX runs each
+level with MiniGrid's ``max_steps``. Its observation is the full symbolic grid (no egocentric
+crop, no occlusion), less work per step than jaxgrid's MiniGrid view; the ratio is quoted as
+measured.
 jaxgrid runs twice: with ``AutoReset`` (a fresh episode computed for every env on every step
 and selected, as in ``env_throughput``) and with ``BatchedAutoReset`` (fresh episodes only
 where one ended, as its learner steps it); NAVIX with its built-in auto-reset.
@@ -36,6 +37,7 @@ FAMILY_IDS = (
     "MiniGrid-SimpleCrossingS9N2-v0",
     "MiniGrid-DistShift1-v0",
     "MiniGrid-GoToDoor-8x8-v0",
+    "MiniGrid-Dynamic-Obstacles-8x8-v0",
 )
 
 
