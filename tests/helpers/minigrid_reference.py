@@ -326,6 +326,13 @@ def check_steps(env: Environment, state, actions, label: str = ""):
     return jax.tree.map(first, obs0), jax.tree.map(first, outs), episode.length
 
 
+def outcomes(episodes: list[Episode]) -> tuple[int, int]:
+    """``(successes, failures)``: episodes MiniGrid ended with a positive / zero reward."""
+    ends = [(ep.steps["terminated"][ep.length - 1], ep.steps["reward"][ep.length - 1])
+            for ep in episodes]  # fmt: skip
+    return sum(bool(t and r > 0) for t, r in ends), sum(bool(t and r == 0) for t, r in ends)
+
+
 def coverage(episodes: list[Episode]) -> dict:
     """How much of the dynamics a batch of recorded episodes exercised."""
     stats = dict(

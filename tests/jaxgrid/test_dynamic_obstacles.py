@@ -15,7 +15,7 @@
 * The moves' distribution: from fixed states, jaxgrid's sampled moves against MiniGrid's
   (reseeded each time), joint cells of all balls, two-sample chi-square.
 * The full step (moves drawn from ``state.key``) compiles once and runs under
-  ``BatchedAutoReset``; registry defaults; refused settings.
+  ``BatchedAutoReset``; obstacle counts as MiniGrid reduces them; refused settings.
 """
 
 from __future__ import annotations
@@ -197,15 +197,10 @@ def test_full_step_compiles_once_and_runs_batched():
     assert ended > 20
 
 
-def test_registered_defaults_and_mission():
+def test_obstacle_counts_are_minigrids():
     for env_id in IDS:
         mg = R.make_reference(env_id)
-        mg.reset(seed=0)
-        env = jaxgrid.make(env_id)
-        assert R.config_env(env) == R.config_env(from_minigrid(mg)[0])
-        assert env.n_obstacles == mg.n_obstacles
-        state, _ = env.reset(jax.random.PRNGKey(0))
-        assert env.mission_text(state) == mg.mission
+        assert jaxgrid.make(env_id).n_obstacles == mg.n_obstacles, env_id
 
 
 @pytest.mark.parametrize(

@@ -11,7 +11,7 @@
   scripted walks to the matching or the other object, then biased random actions (pickup
   included, which acts as toggle), every field at every step; and, one step at a time, from
   states after MiniGrid's termination, where its rule keeps firing.
-* Registry defaults, compile-once, refused settings.
+* Compile-once, refused settings (registry defaults: ``test_differential.py``).
 """
 
 from __future__ import annotations
@@ -113,16 +113,10 @@ def own_step_run(env_id, seeds, native: bool):
     return episodes
 
 
-def outcomes(episodes):
-    ends = [(ep.steps["terminated"][ep.length - 1], ep.steps["reward"][ep.length - 1])
-            for ep in episodes]  # fmt: skip
-    return sum(bool(t and r > 0) for t, r in ends), sum(bool(t and r == 0) for t, r in ends)
-
-
 @pytest.mark.parametrize("native", [True, False], ids=["native", "converted"])
 def test_memory_steps_like_minigrid(native):
     episodes = own_step_run("MiniGrid-MemoryS13Random-v0", range(12), native)
-    wins, losses = outcomes(episodes)
+    wins, losses = R.outcomes(episodes)
     assert wins >= 4 and losses >= 2, (wins, losses)
 
 
@@ -131,7 +125,7 @@ def test_memory_steps_like_minigrid(native):
 @pytest.mark.parametrize("native", [True, False], ids=["native", "converted"])
 def test_memory_steps_like_minigrid_many_seeds(env_id, native):
     episodes = own_step_run(env_id, range(100, 140), native)
-    wins, losses = outcomes(episodes)
+    wins, losses = R.outcomes(episodes)
     print(f"{env_id}: {R.coverage(episodes)}, {wins} successes, {losses} failures")
     assert wins >= 10 and losses >= 5
 
@@ -158,16 +152,6 @@ def test_rule_keeps_firing_after_termination_like_minigrid():
     reward = np.array([ep.steps["reward"][0] for ep in episodes])
     done = np.array([ep.steps["terminated"][0] for ep in episodes])
     assert (done & (reward > 0)).sum() >= 5 and (done & (reward == 0)).sum() >= 5
-
-
-def test_registered_defaults_and_mission():
-    for env_id in IDS:
-        mg = R.make_reference(env_id)
-        mg.reset(seed=0)
-        env = jaxgrid.make(env_id)
-        assert R.config_env(env) == R.config_env(from_minigrid(mg)[0])
-        state, _ = env.reset(jax.random.PRNGKey(0))
-        assert env.mission_text(state) == mg.mission
 
 
 def test_step_compiles_once():

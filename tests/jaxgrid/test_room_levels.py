@@ -569,17 +569,10 @@ def red_blue_differential(env_id, seeds):
     return episodes
 
 
-def outcomes(episodes):
-    """``(successes, failures)``: episodes MiniGrid ended with a positive / zero reward."""
-    ends = [(ep.steps["terminated"][ep.length - 1], ep.steps["reward"][ep.length - 1])
-            for ep in episodes]  # fmt: skip
-    return sum(bool(t and r > 0) for t, r in ends), sum(bool(t and r == 0) for t, r in ends)
-
-
 @pytest.mark.parametrize("env_id", [id_param(i, {"MiniGrid-RedBlueDoors-6x6-v0"}) for i in REDBLUE])
 def test_red_blue_doors_step_like_minigrid(env_id):
     episodes = red_blue_differential(env_id, range(12))
-    wins, losses = outcomes(episodes)
+    wins, losses = R.outcomes(episodes)
     assert wins >= 3 and losses >= 6, (wins, losses)  # the scripts' outcomes, at least
 
 
@@ -587,7 +580,7 @@ def test_red_blue_doors_step_like_minigrid(env_id):
 @pytest.mark.parametrize("env_id", REDBLUE)
 def test_red_blue_doors_step_like_minigrid_many_seeds(env_id):
     episodes = red_blue_differential(env_id, range(100, 164))
-    wins, losses = outcomes(episodes)
+    wins, losses = R.outcomes(episodes)
     print(f"{env_id}: {R.coverage(episodes)}, {wins} successes, {losses} failures")
     assert wins >= 16 and losses >= 32
 
