@@ -72,12 +72,6 @@ class DynamicObstacles(Environment):
         if not isinstance(n, int) or isinstance(n, bool) or n < 0:
             raise ValueError(f"DynamicObstacles.n_obstacles must be an int >= 0, got {n!r}")
         super().__post_init__()
-        free = (self.width - 2) * (self.height - 2) - 2  # inside, less the goal and agent
-        if n > free:
-            raise ValueError(
-                f"DynamicObstacles.n_obstacles={n} does not fit: the {self.width}x"
-                f"{self.height} grid has {free} free cells besides the goal and the agent"
-            )
         if self.agent_start is not None:
             x, y = self.agent_start
             if not (1 <= x < self.width - 1 and 1 <= y < self.height - 1) or (x, y) == (
@@ -94,7 +88,10 @@ class DynamicObstacles(Environment):
             )
 
     def min_size(self):
-        return 4, 4, "an agent's cell and the goal's inside the walls"
+        side = 4  # the agent's cell, the goal's and each ball's inside the walls
+        while (side - 2) ** 2 - 2 < self.n_obstacles:
+            side += 1
+        return side, side, f"the agent, the goal and {self.n_obstacles} balls inside the walls"
 
     @property
     def num_actions(self) -> int:

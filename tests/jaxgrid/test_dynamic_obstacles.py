@@ -207,7 +207,7 @@ def test_obstacle_counts_are_minigrids():
     "kwargs, message",
     [
         (dict(n_obstacles=-1), "n_obstacles"),
-        (dict(n_obstacles=8), "does not fit"),
+        (dict(n_obstacles=8), r"width must be at least 6 \(the agent, the goal and 8 balls"),
         (dict(agent_start=(3, 3)), "agent_start"),
         (dict(agent_start_dir=4), "agent_start_dir"),
     ],

@@ -38,12 +38,15 @@ from jaxgrid.compat import from_minigrid
 from jaxgrid.constants import BALL, BOX, DONE, DOOR, EMPTY, FLOOR, GOAL, KEY, LAVA, LOCKED, WALL
 from jaxgrid.levels import (
     BlockedUnlockPickup,
+    DynamicObstacles,
     Fetch,
     FixedLevel,
     GoToDoor,
     GoToObject,
     KeyCorridor,
+    Memory,
     MultiRoom,
+    Playground,
     PutNear,
     RedBlueDoors,
     Unlock,
@@ -154,6 +157,12 @@ def _expected(env) -> dict[str, int | range | None]:
         counts.update(goal=0, door=4)
     elif isinstance(env, MissionLevel):  # num_objs objects: _check_structure counts them
         counts.update(goal=0, key=None, ball=None, box=0 if name == "Fetch" else None)
+    elif name == "Memory":  # the start room's key or ball, and one of each at the far end
+        counts.update(goal=0, key=range(1, 3), ball=range(1, 3))
+    elif name == "Playground":  # a door in each inner wall; twelve objects, any types
+        counts.update(goal=0, door=12, key=None, ball=None, box=None)
+    elif name == "DynamicObstacles":
+        counts.update(ball=env.n_obstacles)
     else:
         assert name in ("Empty", "FourRooms"), f"{name}: state what its layouts hold"
     return counts
@@ -174,7 +183,10 @@ def _check_world(env_id, **settings):
     # The oracle's success is reaching the goal: it does not know the own-success levels
     # (open the door, pick up the box or ball), so those are checked for solvability by
     # reachability in _check_rooms, and solved by a scripted solution in test_key_levels.
-    oracle = not isinstance(env, (RoomLevel, RedBlueDoors, MissionLevel))
+    # Memory has no goal, Playground no task, and Dynamic-Obstacles' balls move into the
+    # oracle's path: their reachability is checked in _check_structure.
+    oracle = not isinstance(env, (RoomLevel, RedBlueDoors, MissionLevel, Memory, Playground))
+    oracle &= not isinstance(env, DynamicObstacles)
     states, result = jax.device_get(_resets_and_oracle(env, KEY0, oracle))
     expected = _expected(env)
     width, height = env.width, env.height
@@ -202,7 +214,7 @@ def _check_world(env_id, **settings):
         keys = np.argwhere(kind == KEY)
         if type(env).__name__ == "HazardRooms":  # its key opens nothing: it is a trigger
             keys = keys[:0]
-        if isinstance(env, MissionLevel):  # keys to go to, fetch or move: no locked doors
+        if isinstance(env, (MissionLevel, Memory, Playground)):  # keys as objects: no locks
             keys = keys[:0]
         for kx, ky in keys:  # the key opens the locked door
             assert len(locked) == 1 and grid[kx, ky, 1] == locked[0, 1], where
@@ -211,7 +223,7 @@ def _check_world(env_id, **settings):
         elif isinstance(env, MissionLevel):
             extras = jax.tree.map(lambda a, i=i: a[i], states.extras)
             _check_mission(env, grid, (x, y), extras, where)
-        elif not isinstance(env, MultiRoom):  # its doors: test_room_levels walks them
+        elif not isinstance(env, (MultiRoom, Playground)):  # theirs: their own test files
             _check_doors(env, kind, where)
         if isinstance(env, RedBlueDoors):  # both doors can be faced from the agent's cell
             reach = _reach(kind == EMPTY, (x, y))
@@ -285,6 +297,21 @@ def _check_structure(env, kind, where):
         if isinstance(env, PutNear):
             gaps = np.abs(objects[:, None] - objects[None]).max(-1) + 2 * np.eye(len(objects))
             assert gaps.min() >= 2, f"{where}: two objects next to each other"
+    elif name == "Memory":  # both end objects' neighbour cells reachable from the agent
+        start = np.argwhere((kind == EMPTY) & (ys == h // 2) & (xs == 1))[0]
+        reach = _reach((kind == EMPTY), start)
+        ends = np.argwhere(np.isin(kind, [KEY, BALL]) & (xs > 1))
+        assert len(ends) == 2, where
+        for x, y in ends:
+            assert reach[x, y + (1 if y < h // 2 else -1)], f"{where}: ({x}, {y}) cut off"
+    elif name == "Playground":  # every empty cell connected through the doors
+        open_ = ~np.isin(kind, [WALL])
+        reach = _reach(open_, np.argwhere(kind == EMPTY)[0])
+        assert (reach | ~open_).all(), f"{where}: a room cut off"
+        assert np.isin(kind, [KEY, BALL, BOX]).sum() == 12, where
+    elif name == "DynamicObstacles":  # the goal reachable from the start, balls aside
+        reach = _reach(kind != WALL, np.argwhere(kind == GOAL)[0])
+        assert reach[inner].all(), where
 
 
 def _reach(passable, start) -> np.ndarray:
@@ -621,10 +648,7 @@ def test_gym_render_without_a_mode_warns_like_gymnasium():
 
 # MiniGrid levels whose class overrides MiniGridEnv.step (rules of their own), and has no
 # native level (those convert to it: NATIVE_OWN_STEP).
-OWN_STEP = [
-    "MiniGrid-Dynamic-Obstacles-5x5-v0",
-    "MiniGrid-MemoryS7-v0",
-]
+OWN_STEP = ["MiniGrid-ObstructedMaze-1Dl-v0"]
 NATIVE_OWN_STEP = {
     "MiniGrid-Unlock-v0": Unlock,
     "MiniGrid-UnlockPickup-v0": UnlockPickup,
@@ -635,6 +659,8 @@ NATIVE_OWN_STEP = {
     "MiniGrid-GoToDoor-5x5-v0": GoToDoor,
     "MiniGrid-GoToObject-6x6-N2-v0": GoToObject,
     "MiniGrid-PutNear-6x6-N2-v0": PutNear,
+    "MiniGrid-MemoryS7-v0": Memory,
+    "MiniGrid-Dynamic-Obstacles-5x5-v0": DynamicObstacles,
 }
 
 
