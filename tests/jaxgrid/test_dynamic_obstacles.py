@@ -15,7 +15,8 @@
 * The moves' distribution: from fixed states, jaxgrid's sampled moves against MiniGrid's
   (reseeded each time), joint cells of all balls, two-sample chi-square.
 * The full step (moves drawn from ``state.key``) compiles once and runs under
-  ``BatchedAutoReset``; obstacle counts as MiniGrid reduces them; refused settings.
+  ``BatchedAutoReset``, reset and step compile within 5 s (slow); obstacle counts as
+  MiniGrid reduces them; refused settings.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from helpers.layout_stats import (
     jax_reset_states,
     minigrid_resets,
 )
+from helpers.xla import compile_seconds
 
 import jaxgrid
 from jaxgrid.compat import from_minigrid
@@ -215,3 +217,10 @@ def test_obstacle_counts_are_minigrids():
 def test_bad_settings_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         DynamicObstacles(width=5, height=5, max_steps=10, **kwargs)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", list(IDS))
+def test_compile_seconds(env_id):
+    reset, _, step = compile_seconds(IDS[env_id](), 64)
+    assert reset + step < 5
