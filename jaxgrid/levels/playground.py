@@ -42,20 +42,21 @@ class Playground(Environment):
     def min_size(self):
         return 10, 10, "three rooms of at least three cells along each side"
 
-    def doors(self) -> tuple[list, list]:
-        """``(vertical, horizontal)``: per wall with a door, ``(fixed coordinate, low, high)``
-        of the range its door is drawn from, in MiniGrid's draw order."""
+    def doors(self) -> list[tuple[bool, int, int, int]]:
+        """Per wall with a door, in MiniGrid's order: ``(vertical, fixed, low, high)``, the
+        door at ``(fixed, y)`` (vertical wall) or ``(x, fixed)``, ``y`` or ``x`` uniform in
+        ``low .. high - 1``."""
         rw, rh = self.width // 3, self.height // 3  # roomW, roomH
-        vertical, horizontal = [], []
+        walls = []
         for j in range(3):
             for i in range(3):
                 xl, yt = i * rw, j * rh
                 xr, yb = xl + rw, yt + rh
                 if i + 1 < 3:  # pos = (xR, self._rand_int(yT + 1, yB - 1))
-                    vertical.append((xr, yt + 1, yb - 1))
+                    walls.append((True, xr, yt + 1, yb - 1))
                 if j + 1 < 3:  # pos = (self._rand_int(xL + 1, xR - 1), yB)
-                    horizontal.append((yb, xl + 1, xr - 1))
-        return vertical, horizontal
+                    walls.append((False, yb, xl + 1, xr - 1))
+        return walls
 
     def layout(self) -> jax.Array:
         """The walls, uint8 ``(W, H, 3)``, before any door."""
@@ -70,19 +71,16 @@ class Playground(Environment):
 
     def generate(self, key: jax.Array) -> State:
         w, h = self.width, self.height
-        vertical, horizontal = self.doors()
+        walls = self.doors()
         u_doors, u_agent, u_objects = jax.random.split(key, 3)
-        u = jax.random.uniform(u_doors, (len(vertical) + len(horizontal), 2))
+        u = jax.random.uniform(u_doors, (len(walls), 2))
         grid = self.layout()
         xs, ys = G.coords(w, h)
-        for n, (x, low, high) in enumerate(vertical):
-            y = G.randint(u[n, 0], low, high)
+        for n, (vertical, fixed, low, high) in enumerate(walls):
+            along = G.randint(u[n, 0], low, high)
             colour = G.randint(u[n, 1], 0, NUM_COLOURS)  # _rand_elem(COLOR_NAMES)
-            grid = G.put(grid, (x, y), G.cell(DOOR, colour, CLOSED))
-        for n, (y, low, high) in enumerate(horizontal, start=len(vertical)):
-            x = G.randint(u[n, 0], low, high)
-            colour = G.randint(u[n, 1], 0, NUM_COLOURS)
-            grid = G.put(grid, (x, y), G.cell(DOOR, colour, CLOSED))
+            cell = (fixed, along) if vertical else (along, fixed)
+            grid = G.put(grid, cell, G.cell(DOOR, colour, CLOSED))
         ua = jax.random.uniform(u_agent, (2,))
         agent = G.sample_cell(ua[0], G.is_empty(grid))  # place_agent(): any empty cell
         direction = G.randint(ua[1], 0, 4)
