@@ -14,6 +14,7 @@
   walls; a crowded level has balls with no cell to move to, which stay in both.
 * The moves' distribution: from fixed states, jaxgrid's sampled moves against MiniGrid's
   (reseeded each time), joint cells of all balls, two-sample chi-square.
+* Actions outside ``0..2``, negative ones included, step exactly as ``left``.
 * The full step (moves drawn from ``state.key``) compiles once and runs under
   ``BatchedAutoReset``, reset and step compile within 5 s (slow); obstacle counts as
   MiniGrid reduces them; refused settings.
@@ -40,8 +41,8 @@ from helpers.xla import compile_seconds
 
 import jaxgrid
 from jaxgrid.compat import from_minigrid
-from jaxgrid.constants import BALL, GOAL
-from jaxgrid.levels.dynamic import IDS, DynamicObstacles
+from jaxgrid.constants import BALL, EMPTY_CELL, GOAL
+from jaxgrid.levels.dynamic import BALL_CELL, IDS, DynamicObstacles
 from jaxgrid.wrappers import BatchedAutoReset
 
 DEFAULT = {"MiniGrid-Dynamic-Obstacles-Random-6x6-v0"}
@@ -121,6 +122,7 @@ def replay(env_id, seeds, native, steps, env=None):
             assert (bool(ts.terminated), bool(ts.truncated)) == (terminated, truncated), where
             np.testing.assert_array_equal(np.asarray(state.grid), mg.grid.encode(), where)
             assert tuple(np.asarray(state.agent_pos)) == tuple(mg.agent_pos), where
+            assert mg.carrying is None and (np.asarray(state.carrying) == EMPTY_CELL).all(), where
             counts["steps"] += 1
             if terminated or truncated:  # both step on after the end, as MiniGrid allows
                 counts["hit" if reward < 0 else "goal" if reward > 0 else "other"] += 1
@@ -163,9 +165,19 @@ def joint_moves_minigrid(env_id, state, n):
 
 
 def joint_moves_jaxgrid(env, state, n):
+    """``n`` sampled moves as strings; each moved grid must hold the balls exactly at the
+    returned cells and be otherwise ``state``'s grid."""
     u = jax.random.uniform(jax.random.PRNGKey(1), (n, env.n_obstacles))
-    _, cells = jax.jit(jax.vmap(env.move_obstacles, in_axes=(None, 0)))(state, u)
-    return np.array([str([tuple(int(c) for c in b) for b in row]) for row in np.asarray(cells)])
+    grids, cells = jax.jit(jax.vmap(env.move_obstacles, in_axes=(None, 0)))(state, u)
+    grids, cells = np.asarray(grids), np.asarray(cells)
+    rest = np.asarray(state.grid).copy()
+    rest[rest[..., 0] == BALL] = EMPTY_CELL
+    for grid, row in zip(grids, cells, strict=True):
+        expected = rest.copy()
+        expected[row[:, 0], row[:, 1]] = BALL_CELL
+        assert len({tuple(c) for c in row}) == len(row)
+        np.testing.assert_array_equal(grid, expected)
+    return np.array([str([tuple(int(c) for c in b) for b in row]) for row in cells])
 
 
 @pytest.mark.parametrize("env_id", ["MiniGrid-Dynamic-Obstacles-6x6-v0"])
@@ -197,6 +209,19 @@ def test_full_step_compiles_once_and_runs_batched():
         balls = np.asarray(states.grid[..., 0] == BALL).sum(axis=(1, 2))
         assert (balls == env.n_obstacles).all()
     assert ended > 20
+
+
+def test_out_of_range_actions_act_as_left():
+    """MiniGrid turns ``action >= 3`` into ``left`` and raises on negative actions (after
+    moving the balls); here every action outside ``0..2`` is ``left``, same key, same moves."""
+    env = IDS["MiniGrid-Dynamic-Obstacles-8x8-v0"]()
+    state, _ = env.reset(jax.random.PRNGKey(4))
+    step = jax.jit(env.step)
+    left = step(state, 0)
+    assert int(left[0].agent_dir) != int(step(state, 1)[0].agent_dir)  # the check can fail
+    for action in (-7, -1, 3, 6, 7, 100):
+        pairs = zip(jax.tree.leaves(left), jax.tree.leaves(step(state, action)), strict=True)
+        assert all(np.array_equal(a, b) for a, b in pairs), action
 
 
 def test_obstacle_counts_are_minigrids():
