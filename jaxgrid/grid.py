@@ -38,6 +38,14 @@ def randint(u: jax.Array, low, high) -> jax.Array:
     return low + jnp.minimum(jnp.floor(u * n).astype(jnp.int32), n - 1)
 
 
+def select(index, table) -> jax.Array:
+    """``table[index]`` along the first axis as a select-sum: no gather under ``vmap``, where
+    a gather with a traced index is slow on CPU and the tables are a few rows."""
+    table = jnp.asarray(table)
+    hit = jnp.arange(table.shape[0]) == index
+    return jnp.sum(jnp.where(hit.reshape((-1,) + (1,) * (table.ndim - 1)), table, 0), axis=0)
+
+
 def sample_cell(u: jax.Array, allowed: jax.Array) -> jax.Array:
     """Uniform ``(x, y)`` among the ``True`` cells of ``allowed`` (``(W, H)`` bool), from ``u``.
 

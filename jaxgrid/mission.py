@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxgrid import grid as G
 from jaxgrid.constants import COLOR_NAMES, OBJECT_NAMES
 
 PAD, UNK = 0, 1
@@ -118,15 +119,11 @@ def fill(template: str, **slots) -> jax.Array:
             ids.append(jnp.int32(value))
         else:
             table = COLOUR_IDS if value.endswith("colour") else KIND_IDS
-            index = jnp.asarray(slots[value], jnp.int32)
-            # a select-sum over the small table: no gather under vmap
-            ids.append(jnp.sum(jnp.where(jnp.arange(len(table)) == index, table, 0)))
+            ids.append(G.select(jnp.asarray(slots[value], jnp.int32), table))
     ids += [jnp.int32(PAD)] * (MAX_WORDS - len(ids))
     return jnp.stack(ids).astype(jnp.int32)
 
 
 def choose(index, missions) -> jax.Array:
     """The ``index``-th of several filled missions (int32 ``(k, MAX_WORDS)``)."""
-    missions = jnp.asarray(missions)
-    hit = jnp.arange(missions.shape[0]) == index
-    return jnp.sum(jnp.where(hit[:, None], missions, 0), axis=0).astype(jnp.int32)
+    return G.select(index, jnp.asarray(missions)).astype(jnp.int32)

@@ -56,8 +56,7 @@ class FixedLevel(Environment):
             raise ValueError(f"FixedLevel.agent_dir must be 0..3 or -1, got {self.agent_dir!r}")
 
     def mission(self, state: State) -> jax.Array:
-        text = self.MISSION if self.mission_string is None else self.mission_string
-        return jnp.asarray(mission_words.encode(text, strict=False))
+        return jnp.asarray(mission_words.encode(self.mission_text(state), strict=False))
 
     def mission_text(self, state: State) -> str:
         return self.MISSION if self.mission_string is None else self.mission_string

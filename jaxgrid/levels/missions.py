@@ -85,12 +85,6 @@ class PutNearMission:
     target: Mission
 
 
-def _select(index, table) -> jax.Array:
-    """``table[index]`` along the first axis as a select-sum: no gather under ``vmap``."""
-    hit = jnp.arange(table.shape[0]) == index
-    return jnp.sum(jnp.where(hit.reshape((-1,) + (1,) * (table.ndim - 1)), table, 0), axis=0)
-
-
 def _draw_distinct(u: jax.Array, n: int) -> jax.Array:
     """int32 ``(len(u),)`` values in ``0 .. n - 1``, each uniform among those not drawn before
     (MiniGrid's "draw; if already drawn: draw again"). ``len(u)`` must not exceed ``n``."""
@@ -223,7 +217,7 @@ class GoToDoor(_GoTo):
         agent = jnp.stack([G.randint(u[10], 1, rw - 1), G.randint(u[11], 1, rh - 1)])
         direction = G.randint(u[12], 0, 4)
         target = G.randint(u[13], 0, 4)  # doorIdx = _rand_int(0, len(doorPos))
-        extras = mission(DOOR, _select(target, colours), _select(target, doors))
+        extras = mission(DOOR, G.select(target, colours), G.select(target, doors))
         return self.init_state(grid, agent, direction, key, extras)
 
 
@@ -280,7 +274,7 @@ class _ObjectRoom(MissionLevel):
             pair = _draw_distinct(u[:, 0], pairs)
         else:  # objType = _rand_elem(types); objColor = _rand_elem(COLOR_NAMES)
             pair = G.randint(u[:, 0], 0, pairs)
-        kinds = jax.vmap(_select, in_axes=(0, None))(pair // NUM_COLOURS, types)
+        kinds = jax.vmap(G.select, in_axes=(0, None))(pair // NUM_COLOURS, types)
         colours = pair % NUM_COLOURS
         xs, ys = G.coords(w, h)
 
@@ -336,7 +330,7 @@ class GoToObject(_ObjectRoom, _GoTo):
     def generate(self, key: jax.Array) -> State:
         grid, kinds, colours, cells, agent, direction, u = self._layout(key, 1)
         target = G.randint(u[0], 0, self.num_objs)  # objIdx = _rand_int(0, len(objs))
-        pick = lambda a: _select(target, a)
+        pick = lambda a: G.select(target, a)
         extras = mission(pick(kinds), pick(colours), pick(cells))
         return self.init_state(grid, agent, direction, key, extras)
 
@@ -387,7 +381,7 @@ class Fetch(_ObjectRoom):
     def generate(self, key: jax.Array) -> State:
         grid, kinds, colours, cells, agent, direction, u = self._layout(key, 2)
         target = G.randint(u[0], 0, self.num_objs)  # objs[self._rand_int(0, len(objs))]
-        pick = lambda a: _select(target, a)
+        pick = lambda a: G.select(target, a)
         phrasing = G.randint(u[1], 0, len(FETCH_PHRASINGS))  # idx = self._rand_int(0, 5)
         target = mission(pick(kinds), pick(colours), pick(cells))
         extras = FetchMission(**vars(target), phrasing=phrasing.astype(jnp.int32))
@@ -450,7 +444,7 @@ class PutNear(_ObjectRoom):
         # while True: targetIdx = _rand_int(0, len(objs)); if targetIdx != objIdx: break
         other = G.randint(u[1], 0, n - 1)
         target = other + (other >= move)
-        about = lambda i: mission(_select(i, kinds), _select(i, colours), _select(i, cells))
+        about = lambda i: mission(G.select(i, kinds), G.select(i, colours), G.select(i, cells))
         extras = PutNearMission(move=about(move), target=about(target))
         return self.init_state(grid, agent, direction, key, extras)
 

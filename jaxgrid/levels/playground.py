@@ -88,8 +88,7 @@ class Playground(Environment):
 
         def place(grid, u_i):
             # objType = _rand_elem(types); objColor = _rand_elem(COLOR_NAMES)
-            pick = jnp.arange(len(TYPES)) == G.randint(u_i[0], 0, len(TYPES))
-            kind = jnp.sum(jnp.where(pick, jnp.asarray(TYPES, jnp.int32), 0))  # no gather
+            kind = G.select(G.randint(u_i[0], 0, len(TYPES)), jnp.asarray(TYPES, jnp.int32))
             colour = G.randint(u_i[1], 0, NUM_COLOURS)
             # place_obj(obj): an empty cell that is not the agent's
             cell = G.sample_cell(u_i[2], G.is_empty(grid) & not_agent)

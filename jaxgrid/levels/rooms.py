@@ -51,12 +51,6 @@ from jaxgrid.types import State, TimeStep
 NUM_COLOURS = 6  # MiniGrid's COLOR_NAMES
 
 
-def _one_hot_select(index, table) -> jax.Array:
-    """``table[index]`` along the first axis as a select-sum: no gather under ``vmap``."""
-    hit = jnp.arange(table.shape[0]) == index
-    return jnp.sum(jnp.where(hit.reshape((-1,) + (1,) * (table.ndim - 1)), table, 0), axis=0)
-
-
 def _check_int(level, field: str, low: int, why: str) -> None:
     value = getattr(level, field)
     if not isinstance(value, int) or isinstance(value, bool) or value < low:
@@ -179,7 +173,7 @@ class MultiRoom(Environment):
         kept = inside & jnp.all(apart | ~older[None, :], axis=1)
         # the first try kept wins: "if success: break"
         first = jnp.argmax(kept)
-        pick = lambda a: _one_hot_select(first, a)
+        pick = lambda a: G.select(first, a)
         door = jnp.stack([pick(door_x), pick(door_y)])
         top = jnp.stack([pick(tx), pick(ty)])
         size = jnp.stack([pick(sx), pick(sy)])
@@ -198,7 +192,7 @@ class MultiRoom(Environment):
         first = []
         for axis, limit in ((0, self.width), (1, self.height - 1)):
             pairs = _first_room_pairs(self.width - 2, sizes, limit)
-            first.append(_one_hot_select(G.randint(u[axis], 0, len(pairs)), jnp.asarray(pairs)))
+            first.append(G.select(G.randint(u[axis], 0, len(pairs)), jnp.asarray(pairs)))
         top0 = jnp.stack([first[0][0], first[1][0]])
         size0 = jnp.stack([first[0][1], first[1][1]])
         row0 = jnp.arange(n) == 0
@@ -246,7 +240,7 @@ class MultiRoom(Environment):
             u = jax.random.uniform(jax.random.fold_in(key, i), (ATTEMPTS_PER_ROUND, width))
             tops, sizes, doors, count = jax.vmap(self._attempt, in_axes=(0, None))(u, num_rooms)
             j = jnp.argmax(count)  # the first attempt with the most rooms
-            found = tuple(_one_hot_select(j, a) for a in (tops, sizes, doors, count))
+            found = tuple(G.select(j, a) for a in (tops, sizes, doors, count))
             longer = found[3] > best[3]  # if len(curRoomList) > len(roomList): replace it
             best = jax.tree.map(lambda new, old: jnp.where(longer, new, old), found, best)
             return i + 1, best
@@ -386,7 +380,7 @@ class LockedRoom(Environment):
 
         # LockedRoom.rand_pos: _rand_pos(topX + 1, topX + sizeX - 1, topY + 1, topY + sizeY - 1)
         def rand_pos(room, ux, uy):
-            (x, y), (sx, sy) = _one_hot_select(room, tops), _one_hot_select(room, sizes)
+            (x, y), (sx, sy) = G.select(room, tops), G.select(room, sizes)
             return jnp.stack([G.randint(ux, x + 1, x + sx - 1), G.randint(uy, y + 1, y + sy - 1)])
 
         locked = G.randint(u[0], 0, 6)  # lockedRoom = _rand_elem(self.rooms)
@@ -403,13 +397,13 @@ class LockedRoom(Environment):
         # while True: keyRoom = _rand_elem(self.rooms); if keyRoom != lockedRoom: break
         other = G.randint(u[9], 0, 5)
         key_room = other + (other >= locked)
-        key_colour = _one_hot_select(locked, colours)  # Key(lockedRoom.color)
+        key_colour = G.select(locked, colours)  # Key(lockedRoom.color)
         grid = G.put(grid, rand_pos(key_room, u[10], u[11]), G.cell(KEY, key_colour))
         # place_agent(top=(lWallIdx, 0), size=(rWallIdx - lWallIdx, height))
         left, right = w // 2 - 2, w // 2 + 2
         hallway = (xs >= left) & (xs < right)
         agent = G.sample_cell(u[12], G.is_empty(grid) & hallway)
-        task = KeyRoom(key_colour, _one_hot_select(key_room, colours))
+        task = KeyRoom(key_colour, G.select(key_room, colours))
         return self.init_state(grid, agent, G.randint(u[13], 0, 4), key, task)
 
 
