@@ -8,23 +8,27 @@ import numpy as np
 
 from jaxgrid.constants import COLOR_TO_IDX, EMPTY_CELL, OBJECT_TO_IDX
 from jaxgrid.environment import Environment
-from jaxgrid.levels import dynamic, keys, memory, missions, rooms
+from jaxgrid.levels import dynamic, keys, memory, missions, obstructed, rooms
 from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.types import State, TimeStep
 
 SUPPORTED_TYPES = ("wall", "floor", "door", "key", "ball", "box", "goal", "lava")
 
 
-def _check_object(obj, where: str) -> None:
+def _check_object(obj, where: str, boxes_hold: bool = False) -> None:
     if obj.type not in SUPPORTED_TYPES:
         raise ValueError(
             f"unsupported MiniGrid object {type(obj).__name__} (type {obj.type!r}) {where}; "
             f"supported types: {', '.join(SUPPORTED_TYPES)}"
         )
-    if obj.type == "box" and getattr(obj, "contains", None) is not None:
+    inside = getattr(obj, "contains", None) if obj.type == "box" else None
+    if inside is not None and boxes_hold:  # ObstructedMaze keeps what its boxes hold
+        _check_object(inside, f"inside the box {where}")
+    elif inside is not None:
         raise ValueError(
-            f"a Box holding a {obj.contains.type} {where} is not supported "
-            "(only empty boxes are; opening one makes it vanish as in MiniGrid)"
+            f"a Box holding a {obj.contains.type} {where} is not supported here (only empty "
+            "boxes are: opening one makes it vanish as in MiniGrid); the ObstructedMaze levels "
+            "keep their boxes' contents when converted without base_step=True"
         )
 
 
@@ -55,12 +59,15 @@ def from_minigrid(
     ``targetType``/``targetColor``, PutNear's object to move and ``target_pos``. ``MemoryEnv``
     converts to :class:`~jaxgrid.levels.memory.Memory` with ``success_pos`` and
     ``failure_pos``; ``DynamicObstaclesEnv`` to :class:`~jaxgrid.levels.dynamic.DynamicObstacles`
-    with the cells of ``obstacles``, in order.
+    with the cells of ``obstacles``, in order. ``ObstructedMaze_1Dlhb``, ``ObstructedMaze_Full``
+    and ``ObstructedMaze_Full_V1`` convert to :mod:`jaxgrid.levels.obstructed`'s levels with
+    ``obj`` (the red ball) and what every box holds (``box.contains``, in the grid and in the
+    agent's hands) in ``state.extras``; other levels refuse boxes that hold something.
 
     Any other class that overrides ``step`` (subclasses of the families above, ...) has rules
     of its own that are not reproduced, so it raises ``ValueError`` naming the class, unless
     ``base_step=True`` asks for its layout under ``MiniGridEnv.step``'s rules alone;
-    ``base_step=True`` gives that ``FixedLevel`` for the eleven families too. An env that is
+    ``base_step=True`` gives that ``FixedLevel`` for the families above too. An env that is
     not a MiniGrid env raises too.
     """
     from minigrid.minigrid_env import MiniGridEnv  # minigrid is needed here only
@@ -81,13 +88,14 @@ def from_minigrid(
         )
     if getattr(env, "grid", None) is None or getattr(env, "agent_pos", None) is None:
         raise ValueError("from_minigrid needs a MiniGrid env that has been reset")
+    boxes_hold = native in (obstructed.ObstructedMaze1D, obstructed.ObstructedMazeFull)
     for i in range(env.grid.width):
         for j in range(env.grid.height):
             obj = env.grid.get(i, j)
             if obj is not None:
-                _check_object(obj, f"at cell ({i}, {j})")
+                _check_object(obj, f"at cell ({i}, {j})", boxes_hold)
     if env.carrying is not None:
-        _check_object(env.carrying, "carried by the agent")
+        _check_object(env.carrying, "carried by the agent", boxes_hold)
     grid = env.grid.encode()
     carrying = tuple(int(c) for c in env.carrying.encode()) if env.carrying else tuple(EMPTY_CELL)
     pos = tuple(int(c) for c in env.agent_pos)
@@ -116,6 +124,9 @@ def _native_family(env):
         GoToObjectEnv,
         KeyCorridorEnv,
         MemoryEnv,
+        ObstructedMaze_1Dlhb,
+        ObstructedMaze_Full,
+        ObstructedMaze_Full_V1,
         PutNearEnv,
         RedBlueDoorEnv,
         UnlockEnv,
@@ -134,6 +145,9 @@ def _native_family(env):
         PutNearEnv: missions.PutNear,
         MemoryEnv: memory.Memory,
         DynamicObstaclesEnv: dynamic.DynamicObstacles,
+        ObstructedMaze_1Dlhb: obstructed.ObstructedMaze1D,
+        ObstructedMaze_Full: obstructed.ObstructedMazeFull,
+        ObstructedMaze_Full_V1: obstructed.ObstructedMazeFull,
     }
     native = families.get(type(env))
     if native is keys.KeyCorridor and env.obj_type != "ball":
@@ -202,6 +216,37 @@ def _fetch_phrasing(env) -> jax.Array:
     return jnp.int32(missions.FETCH_PHRASINGS.index(leads[0]))
 
 
+def _obstructed(env, native):
+    """An ObstructedMaze level and its :class:`~jaxgrid.levels.obstructed.HiddenKeys`: the red
+    ball the step rule tests (``env.obj``) and what each box holds, in the grid and in hand."""
+    from minigrid.envs import ObstructedMaze_Full_V1
+
+    settings = dict(_settings(env), key_in_box=bool(env.key_in_box), blocked=bool(env.blocked))
+    if native is obstructed.ObstructedMazeFull:
+        settings.update(
+            num_quarters=int(env.num_quarters),
+            agent_room=tuple(int(c) for c in env.agent_room),
+            keys_after_doors=isinstance(env, ObstructedMaze_Full_V1),
+        )
+    jenv = native(**settings)
+
+    def held(obj) -> np.ndarray:  # the encoding of what a box holds (empty: EMPTY_CELL)
+        inside = getattr(obj, "contains", None) if obj is not None else None
+        return np.asarray(inside.encode() if inside is not None else EMPTY_CELL, np.uint8)
+
+    contents = np.zeros((env.grid.width, env.grid.height, 3), np.uint8)
+    for i in range(env.grid.width):
+        for j in range(env.grid.height):
+            contents[i, j] = held(env.grid.get(i, j))
+    target = env.obj
+    where = target.cur_pos if target.cur_pos is not None else (-1, -1)
+    task = keys.mission(OBJECT_TO_IDX[target.type], COLOR_TO_IDX[target.color], where)
+    extras = obstructed.HiddenKeys(
+        **vars(task), contents=jnp.asarray(contents), carried=jnp.asarray(held(env.carrying))
+    )
+    return jenv, extras
+
+
 def _convert_native(env, native, grid, carrying, pos, key):
     """``(native env, state, timestep)`` continuing ``env``'s episode under its own rules."""
     if native is missions.GoToDoor:
@@ -226,6 +271,8 @@ def _convert_native(env, native, grid, carrying, pos, key):
             success=jnp.asarray(env.success_pos, jnp.int32),
             failure=jnp.asarray(env.failure_pos, jnp.int32),
         )
+    elif native in (obstructed.ObstructedMaze1D, obstructed.ObstructedMazeFull):
+        jenv, extras = _obstructed(env, native)
     elif native is rooms.RedBlueDoors:
         jenv = native(**_settings(env))
         extras = rooms.DoorPair(

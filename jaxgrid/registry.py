@@ -16,6 +16,7 @@ from jaxgrid.levels import (
     memory,
     missions,
     navigation,
+    obstructed,
     playground,
     rooms,
 )
@@ -67,6 +68,7 @@ _BUILTIN: dict[str, Callable[[], Environment]] = {
     **memory.IDS,
     **playground.IDS,
     **dynamic.IDS,
+    **obstructed.IDS,
     **_scenarios(),
 }
 _USER: dict[str, Callable[[], Environment]] = {}

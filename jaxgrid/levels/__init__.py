@@ -7,6 +7,7 @@ from jaxgrid.levels.keys import BlockedUnlockPickup, KeyCorridor, Unlock, Unlock
 from jaxgrid.levels.memory import Memory
 from jaxgrid.levels.missions import Fetch, GoToDoor, GoToObject, PutNear
 from jaxgrid.levels.navigation import Crossing, DistShift, FourRooms
+from jaxgrid.levels.obstructed import ObstructedMaze1D, ObstructedMazeFull
 from jaxgrid.levels.playground import Playground
 from jaxgrid.levels.rooms import LockedRoom, MultiRoom, RedBlueDoors
 
@@ -27,6 +28,8 @@ __all__ = [
     "LockedRoom",
     "Memory",
     "MultiRoom",
+    "ObstructedMaze1D",
+    "ObstructedMazeFull",
     "Playground",
     "PutNear",
     "RedBlueDoors",

@@ -233,11 +233,16 @@ class RoomLevel(Environment):
         """Whether the step that produced ``state`` with ``action`` completes the mission."""
         raise NotImplementedError
 
+    def core_step(self, state: State, action: jax.Array):
+        """``MiniGridEnv.step`` without the level's rule: ``(state, reward, terminated,
+        truncated)`` of :func:`~jaxgrid.dynamics.transition`."""
+        return transition(state, action, self.max_steps)
+
     def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
         """``MiniGridEnv.step``, then the level's rule: on success ``reward = self._reward()``
         (``1 - 0.9 * step_count / max_steps``) and ``terminated = True``."""
         check_action(action)
-        state, reward, terminated, truncated = transition(state, action, self.max_steps)
+        state, reward, terminated, truncated = self.core_step(state, jnp.asarray(action, jnp.int32))
         success = self.succeeded(state, jnp.asarray(action, jnp.int32))
         success_reward = 1.0 - 0.9 * (state.step_count.astype(jnp.float32) / self.max_steps)
         reward = jnp.where(success, success_reward, reward).astype(jnp.float32)

@@ -10,10 +10,11 @@ level).
 Levels whose ``step`` overrides ``MiniGridEnv.step`` (KeyCorridor, Unlock, UnlockPickup,
 BlockedUnlockPickup, ObstructedMaze, RedBlueDoors) only add a level-specific reward/termination
 on top of it; here they are converted with ``base_step=True`` and MiniGrid steps them with
-``MiniGridEnv.step`` itself, so their layouts exercise the core dynamics. The first four also
-have native levels with their own success rules (:mod:`jaxgrid.levels.keys`, which
-``from_minigrid`` returns for them by default); ``tests/jaxgrid/test_key_levels.py`` steps those
-against MiniGrid's own ``step``.
+``MiniGridEnv.step`` itself, so their layouts exercise the core dynamics (ObstructedMaze-1Dl
+has no box, whose contents ``base_step`` would drop). Each also has a native level with its
+own rules, which ``from_minigrid`` returns by default; ``test_key_levels.py``,
+``test_obstructed_maze.py`` and the family test files step those against MiniGrid's own
+``step``.
 
 Natively generated levels step like MiniGrid too: our resets, copied into MiniGrid, for a few
 levels in the default run and for every registered MiniGrid id with ``-m slow`` (the own-rule

@@ -587,13 +587,13 @@ def test_from_minigrid_keeps_other_levels_and_base_step():
     with pytest.raises(ValueError, match="obj_type='key'"):
         from_minigrid(keyed)
     assert isinstance(from_minigrid(keyed, base_step=True)[0], FixedLevel)
-    for env_id in ("MiniGrid-DoorKey-5x5-v0", "MiniGrid-ObstructedMaze-1Dl-v0"):
+    for env_id in ("MiniGrid-DoorKey-5x5-v0", "BabyAI-GoToRedBall-v0"):
         other = R.make_reference(env_id)
         other.reset(seed=0)
         if env_id.startswith("MiniGrid-DoorKey"):
             assert isinstance(from_minigrid(other)[0], FixedLevel)
         else:
-            with pytest.raises(ValueError, match="ObstructedMaze_1Dlhb overrides"):
+            with pytest.raises(ValueError, match="GoToRedBall overrides"):
                 from_minigrid(other)
 
 

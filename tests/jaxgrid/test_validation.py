@@ -35,7 +35,20 @@ import scipy.ndimage
 import jaxgrid
 import jaxgrid.gym as jgym
 from jaxgrid.compat import from_minigrid
-from jaxgrid.constants import BALL, BOX, DONE, DOOR, EMPTY, FLOOR, GOAL, KEY, LAVA, LOCKED, WALL
+from jaxgrid.constants import (
+    BALL,
+    BOX,
+    COLOR_TO_IDX,
+    DONE,
+    DOOR,
+    EMPTY,
+    FLOOR,
+    GOAL,
+    KEY,
+    LAVA,
+    LOCKED,
+    WALL,
+)
 from jaxgrid.levels import (
     BlockedUnlockPickup,
     DynamicObstacles,
@@ -46,6 +59,8 @@ from jaxgrid.levels import (
     KeyCorridor,
     Memory,
     MultiRoom,
+    ObstructedMaze1D,
+    ObstructedMazeFull,
     Playground,
     PutNear,
     RedBlueDoors,
@@ -57,6 +72,7 @@ from jaxgrid.levels.keys import RoomLevel, roomgrid_size
 from jaxgrid.levels.missions import IDS as MISSION_IDS
 from jaxgrid.levels.missions import MissionLevel
 from jaxgrid.levels.navigation import IDS as NAVIGATION_IDS
+from jaxgrid.levels.obstructed import IDS as OBSTRUCTED_IDS
 from jaxgrid.levels.rooms import IDS as ROOM_IDS
 from jaxgrid.oracle import rollout_oracle
 
@@ -136,6 +152,15 @@ def _expected(env) -> dict[str, int | range | None]:
         counts.update(lava=None if env.obstacle == "lava" else 0)
     elif name == "DistShift":  # columns 3 .. width - 4 of row 1 and of row strip2_row
         counts.update(lava=max(w - 6, 0) * (1 if env.strip2_row == 1 else 2))
+    elif isinstance(env, (ObstructedMaze1D, ObstructedMazeFull)):  # no goal: the red ball
+        full = isinstance(env, ObstructedMazeFull)
+        quarters = env.num_quarters if full else 1
+        locked = 2 * quarters if full else 1
+        # v0: a side room's second blocking ball may cover the key added before it
+        covered = full and env.blocked and not env.keys_after_doors
+        keys = range(locked - quarters, locked + 1) if covered else locked
+        counts.update(goal=0, door=locked + quarters * full, ball=1 + locked * env.blocked)
+        counts.update(key=0 if env.key_in_box else keys, box=keys if env.key_in_box else 0)
     elif isinstance(env, RoomLevel):  # no goal: success is the level's own rule
         counts.update(goal=0, door=1, key=1)
         if isinstance(env, UnlockPickup):
@@ -216,12 +241,15 @@ def _check_world(env_id, **settings):
             keys = keys[:0]
         if isinstance(env, (MissionLevel, Memory, Playground)):  # keys as objects: no locks
             keys = keys[:0]
+        extras = jax.tree.map(lambda a, i=i: a[i], states.extras)
+        if isinstance(env, (ObstructedMaze1D, ObstructedMazeFull)):  # several locks, boxes
+            _check_obstructed(env, grid, (x, y), extras, where)
+            continue
         for kx, ky in keys:  # the key opens the locked door
             assert len(locked) == 1 and grid[kx, ky, 1] == locked[0, 1], where
         if isinstance(env, RoomLevel):
-            _check_rooms(env, grid, (x, y), jax.tree.map(lambda a, i=i: a[i], states.extras), where)
+            _check_rooms(env, grid, (x, y), extras, where)
         elif isinstance(env, MissionLevel):
-            extras = jax.tree.map(lambda a, i=i: a[i], states.extras)
             _check_mission(env, grid, (x, y), extras, where)
         elif not isinstance(env, (MultiRoom, Playground)):  # theirs: their own test files
             _check_doors(env, kind, where)
@@ -410,6 +438,37 @@ def _check_rooms(env, grid, agent, mission, where):
     assert _faceable(with_key, target), f"{where}: the target is out of reach"
 
 
+def _check_obstructed(env, grid, agent, task, where):
+    """ObstructedMaze: the rooms' walls, doors between rooms, the agent in its room, the red
+    ball where ``state.extras`` says, a key for every lock (loose or in a box: the box's
+    ``contents``; v0 layouts may have lost one under a blocking ball), a green ball in front of
+    every locked door when blocked, and the ball reachable with doors and objects cleared."""
+    kind, state = grid[..., 0], grid[..., 2]
+    s = env.room_size - 1
+    xs, ys = np.meshgrid(np.arange(env.width), np.arange(env.height), indexing="ij")
+    lattice = (xs % s == 0) | (ys % s == 0)
+    assert np.isin(kind[lattice], [WALL, DOOR]).all(), f"{where}: a wall is open"
+    assert not np.isin(kind[~lattice], [WALL, DOOR]).any(), f"{where}: a stray wall/door"
+    i, j = env.agent_room if isinstance(env, ObstructedMazeFull) else (0, 0)
+    assert i * s < agent[0] < (i + 1) * s and j * s < agent[1] < (j + 1) * s, where
+    target = tuple(task.pos)
+    assert (kind[target], grid[target][1]) == (BALL, COLOR_TO_IDX["red"]), where
+    boxes = kind == BOX
+    inside = task.contents[..., 0]
+    assert (inside[boxes] == KEY).all() and (inside[~boxes] == EMPTY).all(), where
+    keys = np.concatenate([grid[kind == KEY][:, 1], task.contents[boxes][:, 1]])
+    locks = grid[(kind == DOOR) & (state == LOCKED)][:, 1]
+    assert set(keys.tolist()) <= set(locks.tolist()), f"{where}: a key opens no door"
+    may_lose = isinstance(env, ObstructedMazeFull) and env.blocked and not env.keys_after_doors
+    assert may_lose or sorted(keys.tolist()) == sorted(locks.tolist()), f"{where}: keys {keys}"
+    for dx, dy in np.argwhere((kind == DOOR) & (state == LOCKED)):
+        across = [(dx - 1, dy), (dx + 1, dy)] if dx % s == 0 else [(dx, dy - 1), (dx, dy + 1)]
+        balls = [c for c in across if kind[c] == BALL and grid[c][1] == COLOR_TO_IDX["green"]]
+        assert len(balls) == int(env.blocked), f"{where}: door ({dx}, {dy}) blocked wrongly"
+    # no connect_all: rooms beyond the quarters stay shut, but the ball is always in reach
+    assert _faceable(_reach(kind != WALL, agent), target), f"{where}: the ball is shut away"
+
+
 # FourRooms, the Crossings, DistShift and the key levels: one case per level class (and
 # obstacle) in the default run, every id with -m slow. At its minimum size an id differs from
 # the others of its class only in a setting such as num_crossings (KeyCorridorS4R3 .. S6R3
@@ -430,9 +489,12 @@ ONE_PER_CLASS = {
     "MiniGrid-GoToObject-6x6-N2-v0",
     "MiniGrid-Fetch-5x5-N2-v0",
     "MiniGrid-PutNear-6x6-N2-v0",
+    "MiniGrid-ObstructedMaze-1Dlhb-v0",
+    "MiniGrid-ObstructedMaze-Full-v0",
 }
 MIN_SIZE_IDS = [
-    i if i not in {**NAVIGATION_IDS, **KEY_IDS, **ROOM_IDS, **MISSION_IDS} or i in ONE_PER_CLASS
+    i if i not in {**NAVIGATION_IDS, **KEY_IDS, **ROOM_IDS, **MISSION_IDS, **OBSTRUCTED_IDS}
+    or i in ONE_PER_CLASS
     else pytest.param(i, marks=pytest.mark.slow)
     for i in IDS
 ]  # fmt: skip
@@ -648,7 +710,7 @@ def test_gym_render_without_a_mode_warns_like_gymnasium():
 
 # MiniGrid levels whose class overrides MiniGridEnv.step (rules of their own), and has no
 # native level (those convert to it: NATIVE_OWN_STEP).
-OWN_STEP = ["MiniGrid-ObstructedMaze-1Dl-v0"]
+OWN_STEP = ["BabyAI-GoToRedBall-v0"]
 NATIVE_OWN_STEP = {
     "MiniGrid-Unlock-v0": Unlock,
     "MiniGrid-UnlockPickup-v0": UnlockPickup,
@@ -661,6 +723,9 @@ NATIVE_OWN_STEP = {
     "MiniGrid-PutNear-6x6-N2-v0": PutNear,
     "MiniGrid-MemoryS7-v0": Memory,
     "MiniGrid-Dynamic-Obstacles-5x5-v0": DynamicObstacles,
+    "MiniGrid-ObstructedMaze-1Dl-v0": ObstructedMaze1D,
+    "MiniGrid-ObstructedMaze-2Q-v0": ObstructedMazeFull,
+    "MiniGrid-ObstructedMaze-Full-v1": ObstructedMazeFull,
 }
 
 
@@ -691,6 +756,10 @@ def test_from_minigrid_converts_own_step_levels_with_a_native_level_to_it(env_id
     assert type(env) is NATIVE_OWN_STEP[env_id], type(env)  # its own rules, not FixedLevel's
     assert env == jaxgrid.make(env_id)  # the registered id's configuration
     np.testing.assert_array_equal(state.grid, mg.unwrapped.grid.encode())
+    if any(getattr(o, "contains", None) for o in mg.unwrapped.grid.grid):  # ObstructedMaze's
+        with pytest.raises(ValueError, match=r"Box holding a key at cell .* without base_step"):
+            from_minigrid(mg, base_step=True)  # the base rules would drop them
+        return
     env, _, _ = from_minigrid(mg, base_step=True)  # explicitly: the layout, base rules
     assert isinstance(env, FixedLevel)
 
