@@ -61,7 +61,7 @@ def from_minigrid(
     ``failure_pos``; ``DynamicObstaclesEnv`` to :class:`~jaxgrid.levels.dynamic.DynamicObstacles`
     with the cells of ``obstacles``, in order. ``ObstructedMaze_1Dlhb``, ``ObstructedMaze_Full``
     and ``ObstructedMaze_Full_V1`` convert to :mod:`jaxgrid.levels.obstructed`'s levels with
-    ``obj`` (the red ball) and what every box holds (``box.contains``, in the grid and in the
+    ``obj`` (the blue ball) and what every box holds (``box.contains``, in the grid and in the
     agent's hands) in ``state.extras``; other levels refuse boxes that hold something.
 
     Any other class that overrides ``step`` (subclasses of the families above, ...) has rules

@@ -1,8 +1,8 @@
 """MiniGrid's ObstructedMaze levels, generated natively, with boxes that hold keys.
 
 Rooms of 6 cells share walls (MiniGrid's ``RoomGrid``); locked doors have their keys in a
-room on the agent's side, hidden in blue boxes (``h``), and green balls block the doors
-(``b``). The agent must pick up the red ball. ``generate`` mirrors ``_gen_grid`` of
+room on the agent's side, hidden in grey boxes (``h``), and green balls block the doors
+(``b``). The agent must pick up the blue ball. ``generate`` mirrors ``_gen_grid`` of
 ``ObstructedMaze_1Dlhb``, ``ObstructedMaze_Full`` and ``ObstructedMaze_Full_V1``; the comments
 quote the MiniGrid call each line reproduces. Placements sample uniformly among the cells
 ``place_obj``/``place_agent`` would accept (the distribution their rejection sampling
@@ -13,7 +13,7 @@ A box's contents are not part of MiniGrid's cell encoding, so they live in ``sta
 (:class:`HiddenKeys`): the object inside the box on each cell, and inside the carried box.
 ``step`` is ``MiniGridEnv.step`` with ``Box.toggle`` putting the contents on the box's cell,
 and the contents moving with a box that is picked up or dropped; success (reward
-``1 - 0.9 * step_count / max_steps``, terminated) is any ``pickup`` after which the red ball
+``1 - 0.9 * step_count / max_steps``, terminated) is any ``pickup`` after which the blue ball
 is in the agent's hands.
 """
 
@@ -54,16 +54,17 @@ from jaxgrid.levels.keys import (
 from jaxgrid.types import State
 
 ROOM_SIZE = 6  # ObstructedMazeEnv: room_size = 6, fixed
-TARGET = COLOR_TO_IDX["red"]  # ball_to_find_color = COLOR_NAMES[0]
+# MiniGrid's COLOR_NAMES is sorted by name: ["blue", "green", "grey", "purple", "red", "yellow"]
+TARGET = COLOR_TO_IDX["blue"]  # ball_to_find_color = COLOR_NAMES[0]
 BLOCKING = COLOR_TO_IDX["green"]  # blocking_ball_color = COLOR_NAMES[1]
-BOX_COLOUR = COLOR_TO_IDX["blue"]  # box_color = COLOR_NAMES[2]
+BOX_COLOUR = COLOR_TO_IDX["grey"]  # box_color = COLOR_NAMES[2]
 SIDE_ROOMS = ((2, 1), (1, 2), (0, 1), (1, 0))  # ObstructedMaze_Full: side_rooms
 CORNERS = ((2, 0), (2, 2), (0, 2), (0, 0))  # and corners, in MiniGrid's order
 
 
 @struct.dataclass
 class HiddenKeys(Mission):
-    """ObstructedMaze's task (the red ball, as :class:`~jaxgrid.levels.keys.Mission`) and what
+    """ObstructedMaze's task (the blue ball, as :class:`~jaxgrid.levels.keys.Mission`) and what
     the boxes hold: ``contents`` uint8 ``(W, H, 3)``, the encoding of the object inside the box
     on each cell (``EMPTY_CELL`` where there is no box or it is empty), and ``carried`` uint8
     ``(3,)``, the contents of the box in the agent's hands."""
@@ -116,7 +117,7 @@ class _ObstructedMaze(RoomLevel):
         return new, reward, terminated, truncated
 
     def _hide(self, grid, contents, pos, colour):
-        """``add_key``/``add_door``'s key: ``Key(colour)`` at ``pos``, or a blue box holding it."""
+        """``add_key``/``add_door``'s key: ``Key(colour)`` at ``pos``, or a grey box holding it."""
         key = G.cell(KEY, colour)
         if not self.key_in_box:
             return G.put(grid, pos, key), contents
@@ -150,7 +151,7 @@ def _door_cells(rows: int, cols: int):
 
 
 class ObstructedMaze1D(_ObstructedMaze):
-    """``ObstructedMaze_1Dlhb``: two rooms; the red ball is in the right one, behind a locked
+    """``ObstructedMaze_1Dlhb``: two rooms; the blue ball is in the right one, behind a locked
     door whose key is in the agent's room (in a box if ``key_in_box``; the door blocked by a
     green ball on the agent's side if ``blocked``).
 
@@ -178,7 +179,7 @@ class ObstructedMaze1D(_ObstructedMaze):
 class ObstructedMazeFull(_ObstructedMaze):
     """``ObstructedMaze_Full`` (and ``_Full_V1`` with ``keys_after_doors``): a 3 x 3 maze. The
     middle room opens (closed doors) onto ``num_quarters`` side rooms; each side room has locked
-    doors to its two corner rooms, with their keys inside it; the red ball is in one of the
+    doors to its two corner rooms, with their keys inside it; the blue ball is in one of the
     first ``num_quarters`` corners. The agent starts in ``agent_room`` (column, row).
 
     v0 adds each key right after its door and blocking ball, so the next ball may cover it;

@@ -152,7 +152,7 @@ def _expected(env) -> dict[str, int | range | None]:
         counts.update(lava=None if env.obstacle == "lava" else 0)
     elif name == "DistShift":  # columns 3 .. width - 4 of row 1 and of row strip2_row
         counts.update(lava=max(w - 6, 0) * (1 if env.strip2_row == 1 else 2))
-    elif isinstance(env, (ObstructedMaze1D, ObstructedMazeFull)):  # no goal: the red ball
+    elif isinstance(env, (ObstructedMaze1D, ObstructedMazeFull)):  # no goal: the blue ball
         full = isinstance(env, ObstructedMazeFull)
         quarters = env.num_quarters if full else 1
         locked = 2 * quarters if full else 1
@@ -452,7 +452,7 @@ def _check_obstructed(env, grid, agent, task, where):
     i, j = env.agent_room if isinstance(env, ObstructedMazeFull) else (0, 0)
     assert i * s < agent[0] < (i + 1) * s and j * s < agent[1] < (j + 1) * s, where
     target = tuple(task.pos)
-    assert (kind[target], grid[target][1]) == (BALL, COLOR_TO_IDX["red"]), where
+    assert (kind[target], grid[target][1]) == (BALL, COLOR_TO_IDX["blue"]), where
     boxes = kind == BOX
     inside = task.contents[..., 0]
     assert (inside[boxes] == KEY).all() and (inside[~boxes] == EMPTY).all(), where
