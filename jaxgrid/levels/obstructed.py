@@ -230,32 +230,47 @@ class ObstructedMazeFull(_ObstructedMaze):
         contents = jnp.broadcast_to(jnp.asarray(EMPTY_CELL), grid.shape)
         colours = jnp.argsort(u[:6])  # door_colors = _rand_subset(COLOR_NAMES, 6)
         u = u[6:]
-        hidden = iter(u[: 2 * q])
+        # One scan step per quarter (one compiled body, not four): side room i gets the middle
+        # room's door i (closed), then its locked doors (i - 1) % 4 and (i + 1) % 4, with
+        # colours door_colors[i] and door_colors[(i +- 1) % 6], read from static tables.
+        quarters = range(q)
+        side = np.array(SIDE_ROOMS[:q], np.int32)
+        turn = np.array([[(i + k) % 4 for k in (-1, 1)] for i in quarters], np.int32)
+        table = dict(
+            middle=walls[1, 1, :q],
+            locks=walls[side[:, 0, None], side[:, 1, None], turn],
+            ahead=np.asarray(DIR_TO_VEC, np.int32)[turn],
+            colour=np.arange(q, dtype=np.int32),
+            lock_colour=np.array([[(i + k) % 6 for k in (-1, 1)] for i in quarters], np.int32),
+            side=side,
+            u=u[: 2 * q].reshape(q, 2),
+        )
 
-        def door_at(room, d):
-            return doors[int(walls[room[0], room[1], d])]
-
-        def hide(grid, contents, room, colour):  # add_key / add_door's key: place_in_room
-            pos = place_in_room(next(hidden), grid, s, *room, mid)
-            return self._hide(grid, contents, pos, colour)
-
-        for i, side in enumerate(SIDE_ROOMS[:q]):
+        def quarter(carry, t):
+            grid, contents = carry
             # add_door(*middle_room, door_idx=i, color=door_colors[i], locked=False)
-            grid = G.put(grid, door_at((1, 1), i), G.cell(DOOR, colours[i], CLOSED))
-            locks = []
-            for k in (-1, 1):
-                d, colour = (i + k) % 4, colours[(i + k) % 6]
-                door = door_at(side, d)
+            door = G.select(t["middle"], doors)
+            grid = G.put(grid, door, G.cell(DOOR, G.select(t["colour"], colours), CLOSED))
+
+            def hide(grid, contents, k, colour):  # add_key / add_door's key: place_in_room
+                pos = place_in_room(t["u"][k], grid, s, t["side"][0], t["side"][1], mid)
+                return self._hide(grid, contents, pos, colour)
+
+            for k in range(2):  # k = -1, +1
+                colour = G.select(t["lock_colour"][k], colours)
+                door = G.select(t["locks"][k], doors)
                 grid = G.put(grid, door, G.cell(DOOR, colour, LOCKED))
                 if self.blocked:  # grid.set(door_pos - DIR_TO_VEC[door_idx], Ball(...))
-                    ahead = door - jnp.asarray(DIR_TO_VEC[d])
-                    grid = G.put(grid, ahead, G.cell(BALL, BLOCKING))
-                if self.keys_after_doors:
-                    locks.append(colour)
-                else:  # v0: the key right after its door (a later ball may cover it)
-                    grid, contents = hide(grid, contents, side, colour)
-            for colour in locks:  # v1: add_key for both doors after them
-                grid, contents = hide(grid, contents, side, colour)
+                    grid = G.put(grid, door - t["ahead"][k], G.cell(BALL, BLOCKING))
+                if not self.keys_after_doors:  # v0: the key right after its door and ball
+                    grid, contents = hide(grid, contents, k, colour)
+            if self.keys_after_doors:  # v1: add_key for both doors after them
+                for k in range(2):
+                    colour = G.select(t["lock_colour"][k], colours)
+                    grid, contents = hide(grid, contents, k, colour)
+            return (grid, contents), None
+
+        (grid, contents), _ = jax.lax.scan(quarter, (grid, contents), table)
 
         # ball_room = _rand_elem(corners); add_object(*ball_room, "ball", ball_to_find_color)
         corner = G.select(G.randint(u[2 * q], 0, q), jnp.asarray(CORNERS[:q], jnp.int32))

@@ -1,0 +1,86 @@
+"""Compile time per MiniGrid id: ``jit(vmap(reset))`` and the auto-resetting ``jit(vmap(step))``.
+
+For each natively generated MiniGrid id (or ``--ids``), with ``--num-envs`` envs: the seconds
+to lower and compile the batched reset, and the batched ``AutoReset`` step (the program a
+training loop runs: the level's step plus a fresh layout for every env that ended), each with
+a fresh cache. An id *passes* when the two together take at most ``--budget`` seconds (5 by
+default). XLA's own flags are left as they are. Usage::
+
+    python -m benchmarks.compile_times                         # every id, ~5 min on 2 cores
+    python -m benchmarks.compile_times --ids MiniGrid-ObstructedMaze-Full-v0 --num-envs 4096
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+
+import jax
+import jax.numpy as jnp
+
+from benchmarks.layout_fidelity import native_ids
+from benchmarks.timing import compile_ahead
+from jaxgrid.io import write_json
+from jaxgrid.registry import make
+from jaxgrid.wrappers import AutoReset
+
+
+def compile_seconds(env_id: str, num_envs: int) -> dict:
+    """``{"reset_s", "step_s", "total_s"}`` for ``env_id`` at ``num_envs`` envs."""
+    env = AutoReset(make(env_id))
+    keys = jax.random.split(jax.random.PRNGKey(0), num_envs)
+    reset, reset_s = compile_ahead(jax.vmap(env.reset), keys)
+    states, _ = reset(keys)
+    actions = jnp.zeros(num_envs, jnp.int32)
+    _, step_s = compile_ahead(jax.vmap(env.step), states, actions)
+    return {"reset_s": reset_s, "step_s": step_s, "total_s": reset_s + step_s}
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--ids", nargs="*", default=None, help="ids to time (default: all)")
+    parser.add_argument("--num-envs", type=int, default=64, help="envs per batch")
+    parser.add_argument("--budget", type=float, default=5.0, help="seconds allowed per id")
+    parser.add_argument("--json", default=None, help="write the report here")
+    args = parser.parse_args(argv)
+    if args.num_envs < 1:
+        parser.error(f"--num-envs must be at least 1, got {args.num_envs}")
+    if args.budget <= 0:
+        parser.error(f"--budget must be positive, got {args.budget}")
+    ids = args.ids or native_ids()
+    unknown = [i for i in ids if i not in native_ids()]
+    if unknown:
+        parser.error(f"not a native MiniGrid id: {unknown[0]!r}; ids: {', '.join(native_ids())}")
+    device = jax.devices()[0]
+    report = {
+        "device": f"{device.platform}: {getattr(device, 'device_kind', '')} "
+        f"({platform.processor() or platform.machine()})",
+        "jax": jax.__version__,
+        "num_envs": args.num_envs,
+        "budget_s": args.budget,
+        "ids": {},
+    }
+    for k, env_id in enumerate(ids):
+        jax.clear_caches()  # each id compiles from scratch, as in a fresh process
+        r = compile_seconds(env_id, args.num_envs)
+        r["passed"] = r["total_s"] <= args.budget
+        report["ids"][env_id] = r
+        print(
+            f"[{k + 1}/{len(ids)}] {env_id}: reset {r['reset_s']:.2f} s + step "
+            f"{r['step_s']:.2f} s = {r['total_s']:.2f} s",
+            file=sys.stderr,
+        )
+    totals = {i: r["total_s"] for i, r in report["ids"].items()}
+    slowest = max(totals, key=totals.get)
+    report["failed"] = [i for i, r in report["ids"].items() if not r["passed"]]
+    report["slowest"] = {"id": slowest, "total_s": totals[slowest]}
+    print(f"\n{len(ids) - len(report['failed'])}/{len(ids)} ids compile within {args.budget} s")
+    print(f"slowest: {slowest} {totals[slowest]:.2f} s; over budget: {report['failed'] or 'none'}")
+    if args.json:
+        write_json(args.json, report)
+    return report
+
+
+if __name__ == "__main__":
+    main()
