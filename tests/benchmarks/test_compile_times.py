@@ -1,0 +1,35 @@
+"""benchmarks.compile_times: per-id compile seconds, the budget verdict, bad arguments."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from benchmarks import compile_times as CT
+
+
+def test_reports_each_id_with_its_verdict(tmp_path):
+    out = tmp_path / "compile.json"
+    ids = ["MiniGrid-Empty-5x5-v0", "MiniGrid-ObstructedMaze-1Dl-v0"]
+    report = CT.main(["--ids", *ids, "--num-envs", "4", "--budget", "1e-6", "--json", str(out)])
+    assert list(report["ids"]) == ids
+    for r in report["ids"].values():
+        assert r["reset_s"] > 0 and r["step_s"] > 0 and not r["passed"]  # no compile is free
+        assert r["total_s"] == pytest.approx(r["reset_s"] + r["step_s"])
+    assert report["failed"] == ids and report["slowest"]["id"] in ids
+    assert json.loads(out.read_text())["num_envs"] == 4
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--ids", "MiniGrid-Nope-v0"], "not a native MiniGrid id"),
+        (["--num-envs", "0"], "--num-envs must be at least 1"),
+        (["--budget", "0"], "--budget must be positive"),
+    ],
+)
+def test_bad_arguments_are_refused(argv, message, capsys):
+    with pytest.raises(SystemExit):
+        CT.main(argv)
+    assert message in capsys.readouterr().err
