@@ -32,6 +32,7 @@ from jaxgrid.constants import (
     BALL,
     BOX,
     COLOR_TO_IDX,
+    DIR_TO_VEC,
     DOOR,
     DROP,
     EMPTY,
@@ -224,6 +225,32 @@ def test_boxes_keep_what_they_hold_when_opened_or_carried(holds):
         assert tuple(got) == revealed
 
 
+@pytest.mark.parametrize(
+    "env_id", ["MiniGrid-ObstructedMaze-1Dl-v0", "MiniGrid-ObstructedMaze-Full-v1"]
+)
+def test_picking_up_the_blue_ball_succeeds_like_minigrid(env_id):
+    """The agent put next to the target, facing it: the pickup pays ``1 - 0.9 t / max_steps``
+    and terminates, with every field as MiniGrid's."""
+    mg = R.make_reference(env_id)
+    successes = 0
+    for seed in range(6):
+        mg.reset(seed=seed)
+        x, y = mg.obj.cur_pos
+        for d, (dx, dy) in enumerate(DIR_TO_VEC):  # stand on a free neighbour, facing the ball
+            if mg.grid.get(x - dx, y - dy) is None:
+                mg.agent_pos, mg.agent_dir = (x - dx, y - dy), d
+                break
+        env, state, _ = from_minigrid(mg)
+        actions = [PICKUP, DROP]  # MiniGrid's episode ends at the pickup
+        episode = R.record_episode(mg, actions)
+        obs0, outs = R.jax_rollout(env, R.stack([state]), jnp.asarray([actions]))
+        R.compare(f"{env_id} success", [episode], obs0, outs)
+        successes += int(
+            np.asarray(outs["terminated"])[0, 0] and np.asarray(outs["reward"])[0, 0] > 0
+        )
+    assert successes == 6
+
+
 # ------------------------------------------------------------------------ configuration
 
 
@@ -260,7 +287,7 @@ def test_bad_configuration_raises_naming_the_field(cls, overrides, message):
     env_id = (
         "MiniGrid-ObstructedMaze-1Dl-v0"
         if cls is ObstructedMaze1D
-        else ("MiniGrid-ObstructedMaze-Full-v0")
+        else "MiniGrid-ObstructedMaze-Full-v0"
     )
     with pytest.raises(ValueError, match=message):
         jaxgrid.make(env_id, **overrides)
