@@ -67,8 +67,9 @@ def from_minigrid(
     Any other class that overrides ``step`` (subclasses of the families above, ...) has rules
     of its own that are not reproduced, so it raises ``ValueError`` naming the class, unless
     ``base_step=True`` asks for its layout under ``MiniGridEnv.step``'s rules alone;
-    ``base_step=True`` gives that ``FixedLevel`` for the families above too. An env that is
-    not a MiniGrid env raises too.
+    ``base_step=True`` gives that ``FixedLevel`` for the families above too, except where a
+    box holds something (its contents would be lost). An env that is not a MiniGrid env
+    raises too.
     """
     from minigrid.minigrid_env import MiniGridEnv  # minigrid is needed here only
 
