@@ -13,6 +13,8 @@ from jaxgrid.levels.fixed import FixedLevel
 from jaxgrid.types import State, TimeStep
 
 SUPPORTED_TYPES = ("wall", "floor", "door", "key", "ball", "box", "goal", "lava")
+# The native levels whose boxes keep what they hold (in ``state.extras``).
+BOXES_HOLD = (obstructed.ObstructedMaze1D, obstructed.ObstructedMazeFull)
 
 
 def _check_object(obj, where: str, boxes_hold: bool = False) -> None:
@@ -89,7 +91,7 @@ def from_minigrid(
         )
     if getattr(env, "grid", None) is None or getattr(env, "agent_pos", None) is None:
         raise ValueError("from_minigrid needs a MiniGrid env that has been reset")
-    boxes_hold = native in (obstructed.ObstructedMaze1D, obstructed.ObstructedMazeFull)
+    boxes_hold = native in BOXES_HOLD
     for i in range(env.grid.width):
         for j in range(env.grid.height):
             obj = env.grid.get(i, j)
@@ -218,7 +220,7 @@ def _fetch_phrasing(env) -> jax.Array:
 
 
 def _obstructed(env, native):
-    """An ObstructedMaze level and its :class:`~jaxgrid.levels.obstructed.HiddenKeys`: the red
+    """An ObstructedMaze level and its :class:`~jaxgrid.levels.obstructed.HiddenKeys`: the blue
     ball the step rule tests (``env.obj``) and what each box holds, in the grid and in hand."""
     from minigrid.envs import ObstructedMaze_Full_V1
 
@@ -272,7 +274,7 @@ def _convert_native(env, native, grid, carrying, pos, key):
             success=jnp.asarray(env.success_pos, jnp.int32),
             failure=jnp.asarray(env.failure_pos, jnp.int32),
         )
-    elif native in (obstructed.ObstructedMaze1D, obstructed.ObstructedMazeFull):
+    elif native in BOXES_HOLD:
         jenv, extras = _obstructed(env, native)
     elif native is rooms.RedBlueDoors:
         jenv = native(**_settings(env))

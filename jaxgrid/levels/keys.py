@@ -242,8 +242,9 @@ class RoomLevel(Environment):
         """``MiniGridEnv.step``, then the level's rule: on success ``reward = self._reward()``
         (``1 - 0.9 * step_count / max_steps``) and ``terminated = True``."""
         check_action(action)
-        state, reward, terminated, truncated = self.core_step(state, jnp.asarray(action, jnp.int32))
-        success = self.succeeded(state, jnp.asarray(action, jnp.int32))
+        action = jnp.asarray(action, jnp.int32)
+        state, reward, terminated, truncated = self.core_step(state, action)
+        success = self.succeeded(state, action)
         success_reward = 1.0 - 0.9 * (state.step_count.astype(jnp.float32) / self.max_steps)
         reward = jnp.where(success, success_reward, reward).astype(jnp.float32)
         return state, self.make_timestep(state, reward, terminated | success, truncated)
