@@ -426,9 +426,8 @@ class KeyCorridor(RoomLevel):
         # connect_all(): doors of uniform colours until every room is reachable. Rooms carry
         # component labels: joining two components relabels one, so "every room reachable
         # from the agent's" is "one label", tested in O(rooms) per door.
-        def join(labels, a, b):  # labels[a], labels[b] as one-hot selects: no gather under vmap
-            label = lambda r: jnp.sum(jnp.where(jnp.arange(n_rooms) == r, labels, 0))
-            return jnp.where(labels == label(b), label(a), labels)
+        def join(labels, a, b):  # labels[a], labels[b] as select-sums: no gather under vmap
+            return jnp.where(labels == G.select(b, labels), G.select(a, labels), labels)
 
         labels = jnp.arange(n_rooms)
         for w in np.flatnonzero(corridor):  # the corridor's removed walls (static)
