@@ -63,6 +63,13 @@ def draw_actions(seed: int, num_episodes: int, num_steps: int) -> np.ndarray:
     return rng.choice(7, size=(num_episodes, num_steps), p=ACTION_PROBS).astype(np.int32)
 
 
+def pad_actions(actions, num_steps: int, fill) -> np.ndarray:
+    """int32 ``(num_steps,)``: ``actions`` (cut to ``num_steps``), then ``fill``'s actions
+    from the same index on (``fill`` holds at least ``num_steps``)."""
+    actions = list(actions)[:num_steps]
+    return np.array(actions + list(fill[len(actions) : num_steps]), np.int32)
+
+
 def _carried(mg: MiniGridEnv) -> np.ndarray:
     return np.asarray(mg.carrying.encode() if mg.carrying else EMPTY_CELL, np.uint8)
 

@@ -422,11 +422,6 @@ class Planner:
         return True
 
 
-def _pad(actions, num_steps, fill):
-    actions = list(actions)[:num_steps]
-    return np.array(actions + list(fill[len(actions) :]), np.int32)
-
-
 # -------------------------------------------------------------------------- solvability
 
 
@@ -441,7 +436,7 @@ def test_every_reset_is_solved_by_the_scripted_solution(env_id):
         assert planner.solve(env), f"{env_id} reset {b}: no scripted solution"
         plans.append(planner.actions)
     length = max(map(len, plans))
-    actions = np.stack([_pad(p, length, [DONE] * length) for p in plans])
+    actions = np.stack([R.pad_actions(p, length, [DONE] * length) for p in plans])
     _, outs = R.jax_rollout(env, jax.tree.map(jnp.asarray, states), jnp.asarray(actions))
     done_at = np.array([len(p) - 1 for p in plans])
     rows = np.arange(n)
@@ -461,7 +456,7 @@ def _actions_for(mg, env, seed, num_steps, scripted):
         return random
     planner = Planner(mg.grid.encode(), mg.agent_pos, mg.agent_dir)
     assert planner.solve(env)
-    return _pad(planner.actions, num_steps, random)
+    return R.pad_actions(planner.actions, num_steps, random)
 
 
 def differential(env_id, seeds, num_steps=MAX_T, encode_every_step=False, after_success=False):

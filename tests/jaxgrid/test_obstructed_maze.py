@@ -517,12 +517,7 @@ def play(mg, seed, num_steps):
         *_, terminated, truncated, _ = mg.step(int(action))
         if terminated or truncated:
             break
-    return _pad(actions, num_steps, R.draw_actions(seed, 1, num_steps)[0])
-
-
-def _pad(actions, num_steps, fill):
-    actions = list(actions)[:num_steps]
-    return np.array(actions + list(fill[len(actions) : num_steps]), np.int32)
+    return R.pad_actions(actions, num_steps, R.draw_actions(seed, 1, num_steps)[0])
 
 
 def has_all_keys(mg) -> bool:
@@ -560,7 +555,7 @@ def differential(env_id, seeds, num_steps=STEPS):
         env, state, _ = from_minigrid(mg)
         assert type(env) is type(LEVELS[env_id]) and env == jaxgrid.make(env_id)
         states.append(state)
-        actions = _pad(plans[seed], length, R.draw_actions(seed, 1, length)[0])
+        actions = R.pad_actions(plans[seed], length, R.draw_actions(seed, 1, length)[0])
         episodes.append(R.record_episode(mg, actions, seed=seed, encode_every_step=True))
     actions = np.stack([ep.actions for ep in episodes])
     obs0, outs = R.jax_rollout(env, R.stack(states), jnp.asarray(actions))
@@ -633,7 +628,7 @@ def test_native_resets_are_solved_by_the_solver(env_id, n):
         assert solver.solve(), f"{env_id} reset {b}: the solver is stuck"
         plans.append(solver.actions)
     length = -(-max(map(len, plans)) // 100) * 100
-    actions = np.stack([_pad(p, length, [DONE] * length) for p in plans])
+    actions = np.stack([R.pad_actions(p, length, [DONE] * length) for p in plans])
     _, outs = R.jax_rollout(env, jax.tree.map(jnp.asarray, states), jnp.asarray(actions))
     done_at = np.array([len(p) - 1 for p in plans])
     rows = np.arange(n)
