@@ -4,9 +4,13 @@ For each natively generated MiniGrid id (or ``--ids``), with ``--num-envs`` envs
 to lower and compile the batched reset, and the batched ``AutoReset`` step (the program a
 training loop runs: the level's step plus a fresh layout for every env that ended), each with
 a fresh cache. An id *passes* when the two together take at most ``--budget`` seconds (5 by
-default). XLA's own flags are left as they are. Usage::
+default). With ``--repeats k`` every id is timed in ``k`` passes over the ids and each program's
+fastest compile counts: other processes on a shared machine only ever add time, and a burst of
+them lands on different ids in different passes. XLA's own flags are left as they are.
+Usage::
 
     python -m benchmarks.compile_times                         # every id, ~5 min on 2 cores
+    python -m benchmarks.compile_times --repeats 3             # the published figures
     python -m benchmarks.compile_times --ids MiniGrid-ObstructedMaze-Full-v0 --num-envs 4096
 """
 
@@ -27,9 +31,11 @@ from jaxgrid.wrappers import AutoReset
 
 
 def compile_seconds(env_id: str, num_envs: int) -> dict:
-    """``{"reset_s", "step_s", "total_s"}`` for ``env_id`` at ``num_envs`` envs."""
+    """``{"reset_s", "step_s", "total_s"}`` for ``env_id`` at ``num_envs`` envs, each program
+    compiled from an empty cache, as in a fresh process."""
     env = AutoReset(make(env_id))
     keys = jax.random.split(jax.random.PRNGKey(0), num_envs)
+    jax.clear_caches()
     reset, reset_s = compile_ahead(jax.vmap(env.reset), keys)
     states, _ = reset(keys)
     actions = jnp.zeros(num_envs, jnp.int32)
@@ -42,10 +48,13 @@ def main(argv=None) -> dict:
     parser.add_argument("--ids", nargs="*", default=None, help="ids to time (default: all)")
     parser.add_argument("--num-envs", type=int, default=64, help="envs per batch")
     parser.add_argument("--budget", type=float, default=5.0, help="seconds allowed per id")
+    parser.add_argument("--repeats", type=int, default=1, help="compiles per program (fastest)")
     parser.add_argument("--json", default=None, help="write the report here")
     args = parser.parse_args(argv)
     if args.num_envs < 1:
         parser.error(f"--num-envs must be at least 1, got {args.num_envs}")
+    if args.repeats < 1:
+        parser.error(f"--repeats must be at least 1, got {args.repeats}")
     if args.budget <= 0:
         parser.error(f"--budget must be positive, got {args.budget}")
     ids = args.ids or native_ids()
@@ -59,18 +68,22 @@ def main(argv=None) -> dict:
         "jax": jax.__version__,
         "num_envs": args.num_envs,
         "budget_s": args.budget,
+        "repeats": args.repeats,
         "ids": {},
     }
-    for k, env_id in enumerate(ids):
-        jax.clear_caches()  # each id compiles from scratch, as in a fresh process
-        r = compile_seconds(env_id, args.num_envs)
-        r["passed"] = r["total_s"] <= args.budget
-        report["ids"][env_id] = r
-        print(
-            f"[{k + 1}/{len(ids)}] {env_id}: reset {r['reset_s']:.2f} s + step "
-            f"{r['step_s']:.2f} s = {r['total_s']:.2f} s",
-            file=sys.stderr,
-        )
+    for rep in range(args.repeats):
+        for k, env_id in enumerate(ids):
+            r = compile_seconds(env_id, args.num_envs)
+            best = report["ids"].setdefault(env_id, r)
+            best["reset_s"] = min(best["reset_s"], r["reset_s"])
+            best["step_s"] = min(best["step_s"], r["step_s"])
+            best["total_s"] = best["reset_s"] + best["step_s"]
+            best["passed"] = best["total_s"] <= args.budget
+            print(
+                f"[pass {rep + 1}/{args.repeats}, {k + 1}/{len(ids)}] {env_id}: reset "
+                f"{r['reset_s']:.2f} s + step {r['step_s']:.2f} s = {r['total_s']:.2f} s",
+                file=sys.stderr,
+            )
     totals = {i: r["total_s"] for i, r in report["ids"].items()}
     slowest = max(totals, key=totals.get)
     report["failed"] = [i for i, r in report["ids"].items() if not r["passed"]]
