@@ -46,16 +46,28 @@ def select(index, table) -> jax.Array:
     return jnp.sum(jnp.where(hit.reshape((-1,) + (1,) * (table.ndim - 1)), table, 0), axis=0)
 
 
+def prefix_sum(x: jax.Array) -> jax.Array:
+    """``jnp.cumsum(x)`` of a short 1-D integer array, as one masked sum over a triangle.
+
+    XLA's CPU backend lowers ``cumsum`` to a pad, a reduce-window and a slice, each a kernel
+    compiled on its own; the triangle is one fused reduction. Exact for integers; ``O(n^2)``
+    work, for the handful of entries of a grid axis.
+    """
+    n = x.shape[-1]
+    lower = np.arange(n)[:, None] >= np.arange(n)[None, :]  # lower[i, j]: j <= i
+    return jnp.sum(jnp.where(lower, x[..., None, :], 0), axis=-1, dtype=x.dtype)
+
+
 def sample_cell(u: jax.Array, allowed: jax.Array) -> jax.Array:
     """Uniform ``(x, y)`` among the ``True`` cells of ``allowed`` (``(W, H)`` bool), from ``u``.
 
     MiniGrid's ``place_obj`` rejection-samples a rectangle until it hits a valid cell, which
     is the uniform distribution over valid cells. We pick the ``floor(u * count)``-th valid
-    cell in two levels (column, then row): two short cumsums instead of one noise draw per
+    cell in two levels (column, then row): two short prefix sums instead of one noise draw per
     cell, since random bits dominate the cost of a reset. ``allowed`` must not be all False.
     """
     counts = jnp.sum(allowed, axis=1, dtype=jnp.int32)  # valid cells per column x
-    cum = jnp.cumsum(counts)
+    cum = prefix_sum(counts)
     r = jnp.minimum(jnp.floor(u * cum[-1]).astype(jnp.int32), cum[-1] - 1)
     x = jnp.argmax(cum > r)
     r = r - (cum[x] - counts[x])
@@ -64,7 +76,7 @@ def sample_cell(u: jax.Array, allowed: jax.Array) -> jax.Array:
         axis=0,
         dtype=jnp.int32,
     )
-    y = jnp.argmax(jnp.cumsum(column) > r)
+    y = jnp.argmax(prefix_sum(column) > r)
     return jnp.stack([x, y]).astype(jnp.int32)
 
 
@@ -82,3 +94,26 @@ def put(grid: jax.Array, pos, value) -> jax.Array:
     """
     value = jnp.asarray(value, dtype=grid.dtype)
     return jnp.where(at(grid.shape[:2], pos)[..., None], value, grid)
+
+
+def counter_uniforms(key: jax.Array, block, shape: tuple[int, ...]) -> jax.Array:
+    """Uniforms in ``[0, 1)`` of ``shape``: block ``block`` of ``key``'s counter stream.
+
+    Blocks ``0, 1, 2, ...`` of one key are independent draws, each one Threefry hash of
+    counters ``(block, 0 .. size / 2)``: a loop that needs fresh numbers per iteration
+    hashes once per iteration instead of folding the iteration into the key first, and
+    every hash site costs compile time (about 0.2-0.5 s each on CPU). Keys of another PRNG
+    implementation fall back to ``uniform(fold_in(key, block))``.
+    """
+    typed = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+    impl = jax.random.key_impl(key) if typed else None
+    if typed and str(impl) != "threefry2x32":
+        return jax.random.uniform(jax.random.fold_in(key, block), shape)
+    pair = jax.random.key_data(key) if typed else key
+    size = int(np.prod(shape))
+    half = (size + 1) // 2  # each counter pair hashes to two words
+    hi = jnp.broadcast_to(jnp.asarray(block, jnp.uint32), (half,))
+    lo = jnp.arange(half, dtype=jnp.uint32)
+    bits = jax.extend.random.threefry_2x32(pair, jnp.concatenate([hi, lo]))[:size]
+    mantissa = (bits >> 9) | np.uint32(0x3F800000)
+    return (jax.lax.bitcast_convert_type(mantissa, jnp.float32) - 1.0).reshape(shape)

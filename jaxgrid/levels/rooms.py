@@ -65,6 +65,7 @@ MIN_ROOM_SIZE = 4  # _placeRoom(..., minSz=4, ...)
 TRIES = 8  # _placeRoom: for i in range(0, 8): ... one proposal for the next room per try
 ATTEMPTS_PER_ROUND = 4  # chain attempts drawn side by side in one loop iteration
 MAX_ROUNDS = 256  # at most 1024 attempts per reset
+EXTRA_UNIFORMS = 3  # beside each attempt: the agent's cell and direction, the goal's cell
 
 
 def _first_room_pairs(tops: int, sizes: range, limit: int) -> np.ndarray:
@@ -100,6 +101,11 @@ class MultiRoom(Environment):
     ``0.66**1024 < 1e-180``. A grid too small for the rooms asked, where MiniGrid would retry
     forever, gets the longest chain found in the 1024 attempts (the first of that length, as
     MiniGrid's ``roomList``) and fewer rooms than asked.
+
+    Random numbers come from one counter block of the layout key per round
+    (:func:`jaxgrid.grid.counter_uniforms`), the agent's, goal's and doors' ones drawn beside
+    each attempt: every hash of a key is a large kernel that XLA compiles separately, and
+    this keeps the reset and the auto-resetting step within a few seconds of compile.
     """
 
     MISSION = "traverse the rooms to get to the goal"
@@ -119,15 +125,15 @@ class MultiRoom(Environment):
         # bottom wall above the last row (topY + sizeY < height).
         return MIN_ROOM_SIZE, MIN_ROOM_SIZE + 1, "a first room of 4 x 4 cells above the last row"
 
-    def _propose(self, u, parent, older, tops, sizes):
-        """One room's :data:`TRIES` proposals; returns ``(kept, entry wall, door, top, size)``.
+    def _propose(self, u, parent, older, rooms):
+        """One room's :data:`TRIES` proposals; returns ``(kept, room, entry wall)``.
 
-        ``u`` is ``(TRIES, 5)`` uniforms; ``parent`` is ``(top, size, entry wall)`` of the
-        room the door leaves; ``older`` (bool ``(M,)``) marks the rooms the new one must lie
-        apart from (``roomList[:-1]``) among the first ``M`` of ``tops``/``sizes`` (int32
-        ``(M, 2)``).
+        ``u`` is ``(TRIES, 5)`` uniforms; ``parent`` is the row ``(top x, top y, size x,
+        size y, entry wall)`` of the room the door leaves; ``older`` (bool ``(M,)``) marks the
+        rooms the new one must lie apart from (``roomList[:-1]``) among the first ``M`` rows of
+        ``rooms`` (int32 ``(M, 6)``, see :meth:`_attempt`). ``room`` is the new room's row.
         """
-        (px, py), (psx, psy), parent_entry = parent
+        px, py, psx, psy, parent_entry = (parent[i] for i in range(5))
         # wallSet = {0, 1, 2, 3} - {entryDoorWall}; exitDoorWall = _rand_elem(sorted(wallSet))
         index = G.randint(u[:, 0], 0, 3)
         exit_wall = index + (index >= parent_entry)
@@ -162,8 +168,7 @@ class MultiRoom(Environment):
         # if topX + sizeX > self.width or topY + sizeY >= self.height: return False
         inside = (tx >= 0) & (ty >= 0) & (tx + sx <= self.width) & (ty + sy < self.height)
         # for room in roomList[:-1]: nonOverlap = (topX + sizeX < room.top[0] or ...)
-        rx, ry = tops[None, :, 0], tops[None, :, 1]
-        rsx, rsy = sizes[None, :, 0], sizes[None, :, 1]
+        rx, ry, rsx, rsy = (rooms[None, :, i] for i in range(4))
         apart = (
             (tx[:, None] + sx[:, None] < rx)
             | (rx + rsx <= tx[:, None])
@@ -171,19 +176,17 @@ class MultiRoom(Environment):
             | (ry + rsy <= ty[:, None])
         )
         kept = inside & jnp.all(apart | ~older[None, :], axis=1)
-        # the first try kept wins: "if success: break"
-        first = jnp.argmax(kept)
-        pick = lambda a: G.select(first, a)
-        door = jnp.stack([pick(door_x), pick(door_y)])
-        top = jnp.stack([pick(tx), pick(ty)])
-        size = jnp.stack([pick(sx), pick(sy)])
-        return jnp.any(kept), pick(entry), door, top, size
+        # the first try kept wins: "if success: break" (one select for the whole row)
+        row = G.select(jnp.argmax(kept), jnp.stack([tx, ty, sx, sy, door_x, door_y, entry], axis=1))
+        return jnp.any(kept), row[:6], row[6]
 
     def _attempt(self, u, num_rooms):
         """One chain attempt (a call of ``_placeRoom`` from ``_gen_grid``) from uniforms ``u``.
 
-        Returns ``(tops, sizes, doors, count)``: int32 ``(N, 2)`` each (room ``k``'s entry door
-        in ``doors[k]``, unused for the first room) and the number of rooms placed.
+        Returns ``(rooms, count)``: int32 ``(N, 6)`` rows ``(top x, top y, size x, size y,
+        entry door x, entry door y)`` (the door unused for the first room; rows past ``count``
+        zero) and the number of rooms placed. One packed array keeps the per-room updates of
+        the scan to one select.
         """
         n = self.max_num_rooms
         # entryDoorPos = (_rand_int(0, width - 2), _rand_int(0, width - 2)), then the sizes;
@@ -192,76 +195,70 @@ class MultiRoom(Environment):
         first = []
         for axis, limit in ((0, self.width), (1, self.height - 1)):
             pairs = _first_room_pairs(self.width - 2, sizes, limit)
-            first.append(G.select(G.randint(u[axis], 0, len(pairs)), jnp.asarray(pairs)))
-        top0 = jnp.stack([first[0][0], first[1][0]])
-        size0 = jnp.stack([first[0][1], first[1][1]])
-        row0 = jnp.arange(n) == 0
-        zeros = jnp.zeros((n, 2), jnp.int32)
-        tops = jnp.where(row0[:, None], top0, zeros)
-        sizes_ = jnp.where(row0[:, None], size0, zeros)
+            first.append(jnp.asarray(pairs)[G.randint(u[axis], 0, len(pairs))])
+        (tx, sx), (ty, sy) = first
+        room0 = jnp.stack([tx, ty, sx, sy, jnp.int32(0), jnp.int32(0)])
+        rooms = jnp.where((jnp.arange(n) == 0)[:, None], room0, 0)
+        older_rows = max(n - 2, 0)  # roomList[:-1] is never one of the last two of N rows
 
         def next_room(carry, xs):
-            tops, sizes, doors, parent, count, alive = carry
+            rooms, parent, count, alive = carry
             k, u_k = xs
-            # roomList[:-1]: rooms 0 .. k - 2, every room placed but the parent (so never
-            # one of the last two of the N rows)
-            older = jnp.arange(max(n - 2, 0)) < k - 1
-            kept, entry, door, top, size = self._propose(
-                u_k, parent, older, tops[: max(n - 2, 0)], sizes[: max(n - 2, 0)]
-            )
+            # roomList[:-1]: rooms 0 .. k - 2, every room placed but the parent
+            older = jnp.arange(older_rows) < k - 1
+            kept, room, entry = self._propose(u_k, parent, older, rooms[:older_rows])
             # "if numLeft == 1: return True"; a room with no proposal kept ends the chain
             placed = alive & kept & (k < num_rooms)
-            row = ((jnp.arange(n) == k) & placed)[:, None]
-            tops = jnp.where(row, top, tops)
-            sizes = jnp.where(row, size, sizes)
-            doors = jnp.where(row, door, doors)
-            parent = jax.tree.map(
-                lambda new, old: jnp.where(placed, new, old), (top, size, entry), parent
-            )
-            return (tops, sizes, doors, parent, count + placed, placed), None
+            rooms = jnp.where(((jnp.arange(n) == k) & placed)[:, None], room, rooms)
+            parent = jnp.where(placed, jnp.concatenate([room[:4], entry[None]]), parent)
+            return (rooms, parent, count + placed, placed), None
 
         chain_u = u[2:].reshape(n - 1, TRIES, 5)
-        parent = (top0, size0, jnp.int32(2))  # the first room's entryDoorWall=2
-        carry = (tops, sizes_, zeros, parent, jnp.int32(1), jnp.bool_(True))
-        (tops, sizes_, doors, _, count, _), _ = jax.lax.scan(
-            next_room, carry, (jnp.arange(1, n), chain_u)
-        )
-        return tops, sizes_, doors, count
+        parent = jnp.stack([tx, ty, sx, sy, jnp.int32(2)])  # the first room's entryDoorWall=2
+        carry = (rooms, parent, jnp.int32(1), jnp.bool_(True))
+        (rooms, _, count, _), _ = jax.lax.scan(next_room, carry, (jnp.arange(1, n), chain_u))
+        return rooms, count
 
     def _rooms(self, key, num_rooms):
         """MiniGrid's ``roomList``: ``while len(roomList) < numRooms``, attempts in rounds of
         :data:`ATTEMPTS_PER_ROUND`; the first complete attempt, or after :data:`MAX_ROUNDS`
-        the first of the most rooms."""
+        the first of the most rooms.
+
+        Returns ``(rooms, count, extra)`` (``rooms`` and ``count`` as :meth:`_attempt`'s);
+        ``extra`` is :data:`EXTRA_UNIFORMS` plus ``N`` uniforms drawn beside the kept attempt
+        and independent of it, for the rest of the layout, so that a reset hashes its key in
+        one place.
+        """
         n = self.max_num_rooms
-        width = 2 + (n - 1) * TRIES * 5
+        chain = 2 + (n - 1) * TRIES * 5
 
         def round_(carry):
             i, best = carry
-            u = jax.random.uniform(jax.random.fold_in(key, i), (ATTEMPTS_PER_ROUND, width))
-            tops, sizes, doors, count = jax.vmap(self._attempt, in_axes=(0, None))(u, num_rooms)
+            u = G.counter_uniforms(key, 1 + i, (ATTEMPTS_PER_ROUND, chain + EXTRA_UNIFORMS + n))
+            rooms, count = jax.vmap(self._attempt, in_axes=(0, None))(u[:, :chain], num_rooms)
             j = jnp.argmax(count)  # the first attempt with the most rooms
-            found = tuple(G.select(j, a) for a in (tops, sizes, doors, count))
-            longer = found[3] > best[3]  # if len(curRoomList) > len(roomList): replace it
+            found = (G.select(j, rooms), jnp.max(count), G.select(j, u[:, chain:]))
+            longer = found[1] > best[1]  # if len(curRoomList) > len(roomList): replace it
             best = jax.tree.map(lambda new, old: jnp.where(longer, new, old), found, best)
             return i + 1, best
 
         def more(carry):
             i, best = carry
-            return (i < MAX_ROUNDS) & (best[3] < num_rooms)
+            return (i < MAX_ROUNDS) & (best[1] < num_rooms)
 
-        zeros = jnp.zeros((n, 2), jnp.int32)
-        _, best = jax.lax.while_loop(
-            more, round_, (jnp.int32(0), (zeros, zeros, zeros, jnp.int32(0)))
-        )
+        first = (jnp.zeros((n, 6), jnp.int32), jnp.int32(0), jnp.zeros(EXTRA_UNIFORMS + n))
+        _, best = jax.lax.while_loop(more, round_, (jnp.int32(0), first))
         return best
 
     def generate(self, key: jax.Array) -> State:
         n, w, h = self.max_num_rooms, self.width, self.height
-        rooms_key, key_u = jax.random.split(key)
-        u = jax.random.uniform(key_u, (4 + n,))
-        # numRooms = _rand_int(minNumRooms, maxNumRooms + 1)
-        num_rooms = G.randint(u[0], self.min_num_rooms, self.max_num_rooms + 1)
-        tops, sizes, doors, count = self._rooms(rooms_key, num_rooms)
+        # numRooms = _rand_int(minNumRooms, maxNumRooms + 1); no draw for MiniGrid's ids
+        num_rooms = jnp.int32(self.min_num_rooms)
+        if self.max_num_rooms > self.min_num_rooms:
+            u0 = G.counter_uniforms(key, 0, (1,))[0]
+            num_rooms = G.randint(u0, self.min_num_rooms, self.max_num_rooms + 1)
+        rooms, count, u = self._rooms(key, num_rooms)
+        tops, sizes, doors = rooms[:, 0:2], rooms[:, 2:4], rooms[:, 4:6]
         placed = jnp.arange(n) < count
         # for each room: the top, bottom, left and right walls of its rectangle
         xs, ys = G.coords(w, h)
@@ -275,9 +272,9 @@ class MultiRoom(Environment):
         # doorColor = _rand_elem(sorted(set(COLOR_NAMES) - {prevDoorColor})): the previous
         # colour plus 1 .. 5 (mod 6) is uniform among the other five
         steps = jnp.concatenate(
-            [G.randint(u[4:5], 0, NUM_COLOURS), 1 + G.randint(u[5:], 0, NUM_COLOURS - 1)]
+            [G.randint(u[3:4], 0, NUM_COLOURS), 1 + G.randint(u[4:], 0, NUM_COLOURS - 1)]
         )
-        colours = jnp.cumsum(steps[: n - 1]) % NUM_COLOURS  # colours[k - 1]: room k's door
+        colours = G.prefix_sum(steps[: n - 1]) % NUM_COLOURS  # colours[k - 1]: room k's door
         # grid.set(*room.entryDoorPos, Door(doorColor)) for rooms 1 .. count - 1
         here = (xs == doors[1:, 0, None, None]) & (ys == doors[1:, 1, None, None])
         here = here & placed[1:, None, None]
@@ -285,11 +282,11 @@ class MultiRoom(Environment):
         door = jnp.stack([jnp.full_like(colour, DOOR), colour, jnp.full_like(colour, CLOSED)], -1)
         grid = jnp.where(jnp.any(here, axis=0)[..., None], door.astype(jnp.uint8), grid)
         # place_agent(roomList[0].top, roomList[0].size): an empty cell of the first room
-        agent = G.sample_cell(u[1], G.is_empty(grid) & in_rect[0])
-        direction = G.randint(u[2], 0, 4)
+        agent = G.sample_cell(u[0], G.is_empty(grid) & in_rect[0])
+        direction = G.randint(u[1], 0, 4)
         # place_obj(Goal(), roomList[-1].top, roomList[-1].size): not the agent's cell either
         last = jnp.any(in_rect & (jnp.arange(n) == count - 1)[:, None, None], axis=0)
-        goal = G.sample_cell(u[3], G.is_empty(grid) & last & ~G.at((w, h), agent))
+        goal = G.sample_cell(u[2], G.is_empty(grid) & last & ~G.at((w, h), agent))
         grid = G.put(grid, goal, GOAL_CELL)
         return self.init_state(grid, agent, direction, key)
 
