@@ -146,12 +146,7 @@ class Checker(nn.Module):
             raise ValueError(f"frames must end in ({v}, {v}, 3), got shape {frames.shape}")
         lead = frames.shape[:-3]
         x = jnp.asarray(frames, jnp.int32).reshape((-1, v, v, 3))
-        # Clip so out-of-range codes cannot index past a table (XLA would clamp anyway).
-        cells = (
-            self.object_embed(jnp.clip(x[..., 0], 0, NUM_OBJECTS - 1))
-            + self.colour_embed(jnp.clip(x[..., 1], 0, NUM_COLOURS - 1))
-            + self.door_state_embed(jnp.clip(x[..., 2], 0, NUM_STATES - 1))
-        )
+        cells = embed_cells(x, self.object_embed, self.colour_embed, self.door_state_embed)
         h = nn.relu(self.cell_conv(cells))
         h = nn.relu(self.state_dense(h.reshape((h.shape[0], -1))))
         return h.reshape(lead + (self.config.state_dim,))
@@ -163,6 +158,19 @@ class Checker(nn.Module):
         for layer in self.hidden:
             h = nn.relu(layer(h))
         return self.head(h)[..., 0].astype(jnp.float32)
+
+
+def embed_cells(x: jax.Array, objects: nn.Embed, colours: nn.Embed, states: nn.Embed):
+    """int ``(..., 3)`` MiniGrid cells -> the sum of their three lookups ``(..., cell_dim)``.
+
+    Codes are clipped so an out-of-range one cannot index past a table (XLA would clamp
+    anyway). Shared by the window checker and the checker with memory.
+    """
+    return (
+        objects(jnp.clip(x[..., 0], 0, NUM_OBJECTS - 1))
+        + colours(jnp.clip(x[..., 1], 0, NUM_COLOURS - 1))
+        + states(jnp.clip(x[..., 2], 0, NUM_STATES - 1))
+    )
 
 
 def encode_sentence(embed: nn.Embed, gru: nn.RNN, tokens: jax.Array) -> jax.Array:

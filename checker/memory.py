@@ -1,0 +1,402 @@
+"""A checker with memory: a GRU over the episode's frames, for constraints that count.
+
+The window checker (:mod:`checker.model`) sees the last ``n`` frames, so it cannot know how
+often the agent has already stepped on lava, or whether it picked up the key twenty steps
+ago. :class:`MemoryChecker` carries a recurrent state through the episode instead:
+
+* each frame is embedded as the window checker embeds it (cell lookups, a 3x3 convolution,
+  a dense layer: :meth:`checker.model.Checker.embed_states`, the same submodule code);
+* a ``GRUCell(memory_dim)`` reads the frame code concatenated with the sentence code (the
+  sentence conditions what is worth remembering); its state is zeroed where an episode
+  starts, so a batch of streams from auto-resetting envs is read in one scan;
+* an MLP on ``[memory, frame code, sentence code]`` gives one logit per step: will the next
+  step violate the constraint (labels "just before", as the paper's)?
+
+Usage: ``python -m checker.memory --json runs/memory_checker.json`` (``--help`` for flags).
+
+Data are whole streams of ``BatchedAutoReset(HazardRooms)`` under a random behaviour policy
+(:func:`collect_streams`), collected on device; training is truncated-free backpropagation
+through each stream (:func:`train_memory_checker`). :func:`evaluate_streams` reports AUROC
+overall, per constraint type, and on the budget episodes whose violation comes more than
+``late`` steps after the first costly event, which no window of ``late`` frames can count.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from checker.metrics import auroc
+from checker.model import NUM_COLOURS, NUM_OBJECTS, NUM_STATES, embed_cells, encode_sentence
+from jaxgrid import hazard_language as HL
+from jaxgrid.wrappers import BatchedAutoReset
+
+# Behaviour policy over MiniGrid's actions (left, right, forward, pickup, drop, toggle, done):
+# mostly forward, doors opened and the key picked up now and then, never drop or done.
+BEHAVIOUR = (0.15, 0.15, 0.55, 0.075, 0.0, 0.075, 0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class MemoryCheckerConfig:
+    """Sizes of :class:`MemoryChecker` (every field a positive int)."""
+
+    view_size: int = 7
+    max_len: int = HL.MAX_LEN
+    vocab_size: int = HL.vocab_size()
+    word_dim: int = 32
+    gru_dim: int = 64  # sentence code
+    cell_dim: int = 16
+    conv_channels: int = 16
+    state_dim: int = 64  # frame code
+    memory_dim: int = 128
+    mlp_dim: int = 128
+    memory: bool = True  # False zeroes the memory at every frame: the memoryless ablation
+
+    def __post_init__(self):
+        if not isinstance(self.memory, bool):
+            raise ValueError(f"MemoryCheckerConfig.memory must be a bool, got {self.memory!r}")
+        for f in dataclasses.fields(self):
+            if f.name == "memory":
+                continue
+            value = getattr(self, f.name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"MemoryCheckerConfig.{f.name} must be an int >= 1, got {value!r}")
+        if self.view_size < 3 or self.view_size % 2 == 0:
+            raise ValueError(
+                f"MemoryCheckerConfig.view_size must be odd and >= 3, got {self.view_size}"
+            )
+
+
+class MemoryChecker(nn.Module):
+    """Streams of frames, episode starts and sentences -> one violation logit per step."""
+
+    config: MemoryCheckerConfig
+
+    def setup(self):
+        c = self.config
+        self.word_embed = nn.Embed(c.vocab_size, c.word_dim)
+        self.sentence_gru = nn.RNN(nn.GRUCell(c.gru_dim))
+        self.object_embed = nn.Embed(NUM_OBJECTS, c.cell_dim)
+        self.colour_embed = nn.Embed(NUM_COLOURS, c.cell_dim)
+        self.door_state_embed = nn.Embed(NUM_STATES, c.cell_dim)
+        self.cell_conv = nn.Conv(c.conv_channels, (3, 3), padding="VALID")
+        self.state_dense = nn.Dense(c.state_dim)
+        # the frame GRU, scanned over time (axis 1) with one set of parameters
+        self.memory = nn.scan(
+            _MemoryStep,
+            variable_broadcast="params",
+            split_rngs={"params": False},
+            in_axes=1,
+            out_axes=1,
+        )(c.memory_dim)
+        self.hidden = nn.Dense(c.mlp_dim)
+        self.head = nn.Dense(1)
+
+    def __call__(self, frames, starts, tokens):
+        """uint8 ``(B, T, V, V, 3)`` frames, bool ``(B, T)`` starts (True where a frame is an
+        episode's first), int32 ``(B, T, L)`` tokens -> float32 ``(B, T)`` logits."""
+        b, t = starts.shape
+        if not self.config.memory:
+            starts = jnp.ones_like(starts)
+        codes = self.embed_frames(frames)
+        lang = encode_sentence(self.word_embed, self.sentence_gru, tokens.reshape(b * t, -1))
+        lang = lang.reshape(b, t, -1)
+        carry = jnp.zeros((b, self.config.memory_dim), jnp.float32)
+        memory = self.read(carry, codes, starts, lang)
+        return self.classify(memory, codes, lang)
+
+    def embed_frames(self, frames):
+        x = jnp.asarray(frames, jnp.int32)
+        lead, v = x.shape[:-3], self.config.view_size
+        x = x.reshape((-1, v, v, 3))
+        cells = embed_cells(x, self.object_embed, self.colour_embed, self.door_state_embed)
+        h = nn.relu(self.cell_conv(cells))
+        h = nn.relu(self.state_dense(h.reshape((h.shape[0], -1))))
+        return h.reshape(lead + (self.config.state_dim,))
+
+    def read(self, carry, codes, starts, lang):
+        """The memory after each step, ``(B, T, memory_dim)``, zeroed where ``starts``."""
+        _, memory = self.memory(carry, (codes, starts, lang))
+        return memory
+
+    def classify(self, memory, codes, lang):
+        h = nn.relu(self.hidden(jnp.concatenate([memory, codes, lang], -1)))
+        return self.head(h)[..., 0].astype(jnp.float32)
+
+
+class _MemoryStep(nn.Module):
+    """One step of the frame GRU, the carry zeroed at an episode's first frame."""
+
+    features: int
+
+    @nn.compact
+    def __call__(self, carry, xs):
+        code, start, lang = xs
+        carry = jnp.where(start[:, None], 0.0, carry)
+        carry, out = nn.GRUCell(self.features, name="cell")(
+            carry, jnp.concatenate([code, lang], -1)
+        )
+        return carry, out
+
+
+# ------------------------------------------------------------------------------------ data
+
+
+def collect_streams(env, key: jax.Array, num_envs: int, num_steps: int) -> dict:
+    """``num_envs`` streams of ``num_steps`` frames of ``BatchedAutoReset(env)`` (fresh
+    layouts drawn only where an episode ended) under :data:`BEHAVIOUR`, from fresh resets.
+    Returns numpy arrays, ``(N, T, ...)``:
+
+    ``frames`` (uint8 images), ``tokens``, ``starts`` (the frame is an episode's first),
+    ``label`` (the next step violates: ``info["violation"]`` of the step taken from this
+    frame, which belongs to this frame's episode even when that step ends it), ``cost`` and
+    ``violation`` (of the step that produced the frame; 0 at a start), ``ctype`` and
+    ``template`` (``info``'s ``constraint_type`` and ``template_id``) and ``valid`` (a label
+    exists: not the last frame).
+    """
+    wrapped = BatchedAutoReset(env)
+    k_reset, k_run = jax.random.split(key)
+    probs = jnp.asarray(BEHAVIOUR)
+
+    @jax.jit
+    def run(k_reset, k_run):
+        states, ts = wrapped.reset(jax.random.split(k_reset, num_envs))
+
+        def body(carry, k):
+            states, ts, start = carry
+            actions = jax.random.choice(k, len(BEHAVIOUR), (num_envs,), p=probs)
+            new_states, new_ts = wrapped.step(states, actions)
+            frame = {
+                "frames": ts.observation["image"],
+                "tokens": ts.observation["constraint"],
+                "starts": start,
+                "cost": jnp.where(start, 0.0, ts.info["cost"]),
+                "violation": jnp.where(start, 0, ts.info["violation"]).astype(jnp.int32),
+                "ctype": ts.info["constraint_type"],
+                "template": ts.info["template_id"],
+                "label": new_ts.info["violation"].astype(jnp.int32),
+            }
+            ended = new_ts.terminated | new_ts.truncated
+            return (new_states, new_ts, ended), frame
+
+        first = (states, ts, jnp.ones(num_envs, bool))
+        _, frames = jax.lax.scan(body, first, jax.random.split(k_run, num_steps))
+        return jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), frames)
+
+    out = {k: np.asarray(v) for k, v in run(k_reset, k_run).items()}
+    out["valid"] = np.ones(out["starts"].shape, bool)  # every frame has its next step here
+    return out
+
+
+# ------------------------------------------------------------------------------- training
+
+
+@dataclasses.dataclass(frozen=True)
+class MemoryTrainConfig:
+    """Optimisation settings of :func:`train_memory_checker`."""
+
+    updates: int = 1500
+    batch_streams: int = 16
+    lr: float = 1e-3
+    positive_weight: float = 10.0  # violations are rare: weight their loss
+    seed: int = 0
+
+
+def _loss(model, params, batch, positive_weight):
+    logits = model.apply(params, batch["frames"], batch["starts"], batch["tokens"])
+    y = batch["label"].astype(jnp.float32)
+    weight = jnp.where(y > 0, positive_weight, 1.0) * batch["valid"]
+    losses = optax.sigmoid_binary_cross_entropy(logits, y)
+    return jnp.sum(losses * weight) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
+def train_memory_checker(
+    data: dict, config: MemoryCheckerConfig, train: MemoryTrainConfig, progress=None
+):
+    """Fit :class:`MemoryChecker` on ``data`` (:func:`collect_streams`); returns
+    ``(params, losses)``. Each update takes ``batch_streams`` whole streams."""
+    model = MemoryChecker(config)
+    key = jax.random.PRNGKey(train.seed)
+    n = data["starts"].shape[0]
+    if train.batch_streams > n:
+        raise ValueError(f"batch_streams {train.batch_streams} exceeds the {n} streams collected")
+    fields = ("frames", "starts", "tokens", "label", "valid")
+    arrays = {k: jnp.asarray(data[k]) for k in fields}
+    sample = jax.tree.map(lambda a: a[:1], arrays)
+    params = jax.jit(model.init)(key, sample["frames"], sample["starts"], sample["tokens"])
+    tx = optax.adam(train.lr)
+    opt = tx.init(params)
+
+    @jax.jit
+    def update(params, opt, key):
+        idx = jax.random.choice(key, n, (train.batch_streams,), replace=False)
+        batch = jax.tree.map(lambda a: a[idx], arrays)
+        loss, grads = jax.value_and_grad(lambda p: _loss(model, p, batch, train.positive_weight))(
+            params
+        )
+        updates, opt = tx.update(grads, opt, params)
+        return optax.apply_updates(params, updates), opt, loss
+
+    losses = []
+    for i, k in enumerate(jax.random.split(jax.random.fold_in(key, 1), train.updates)):
+        params, opt, loss = update(params, opt, k)
+        losses.append(float(loss))
+        if progress is not None:
+            progress(i, losses[-1])
+    return params, np.asarray(losses)
+
+
+def predict_streams(params, config: MemoryCheckerConfig, data: dict, batch: int = 64):
+    """Violation probabilities ``(N, T)`` of every frame of ``data``."""
+    model = MemoryChecker(config)
+    apply = jax.jit(lambda p, f, s, t: jax.nn.sigmoid(model.apply(p, f, s, t)))
+    out = []
+    for i in range(0, data["starts"].shape[0], batch):
+        sl = slice(i, i + batch)
+        out.append(
+            np.asarray(apply(params, data["frames"][sl], data["starts"][sl], data["tokens"][sl]))
+        )
+    return np.concatenate(out)
+
+
+def late_violation_mask(data: dict, late: int) -> np.ndarray:
+    """bool ``(N, T)``: frames of the episodes whose first violation comes more than ``late``
+    steps after their first costly event (a budget counted beyond a window of ``late``
+    frames). Streams begin with a reset, so every episode is seen from its start."""
+    starts, cost, label = data["starts"], data["cost"] > 0, data["label"] > 0
+    mask = np.zeros(starts.shape, bool)
+    for e in range(starts.shape[0]):
+        begins = [*np.flatnonzero(starts[e]), starts.shape[1]]
+        for a, b in zip(begins[:-1], begins[1:], strict=False):
+            # frame t's cost is the step into it; its label is the step out of it (t + 1):
+            # labels, unlike ``violation``, keep the violation of an episode's final step
+            first_cost = np.flatnonzero(cost[e, a:b])
+            first_violation = np.flatnonzero(label[e, a:b]) + 1
+            if len(first_cost) and len(first_violation):
+                mask[e, a:b] = first_violation[0] - first_cost[0] > late
+    return mask
+
+
+def evaluate_streams(probs, data: dict, late: int = 10) -> dict:
+    """AUROC of ``probs`` against the labels: overall, per constraint type and on late budget
+    violations (:func:`late_violation_mask`), plus the positive counts behind each."""
+    y, valid = data["label"] > 0, data["valid"]
+    report = {"auroc": auroc(y[valid], probs[valid]), "positives": int(y[valid].sum())}
+    per_type = {}
+    for i, name in enumerate(HL.CONSTRAINT_TYPES):
+        m = valid & (data["ctype"] == i)
+        per_type[name] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
+    report["per_type"] = per_type
+    budget = data["ctype"] == HL.CONSTRAINT_TYPES.index("budget")
+    m = valid & budget & late_violation_mask(data, late)
+    report["late_budget"] = {
+        "late": late,
+        "auroc": auroc(y[m], probs[m]),
+        "positives": int(y[m].sum()),
+    }
+    return report
+
+
+def run(
+    env_id: str = "HazardRooms-v0",
+    num_envs: int = 256,
+    num_steps: int = 160,
+    config: MemoryCheckerConfig | None = None,
+    train: MemoryTrainConfig | None = None,
+    splits: Sequence[str] = ("train", "heldout"),
+    late: int = 10,
+    progress: bool = False,
+) -> dict:
+    """Collect streams on the train split, train, and evaluate on fresh streams of each of
+    ``splits`` (other seeds); returns the report with the wall seconds."""
+    import jaxgrid
+
+    config = config or MemoryCheckerConfig()
+    train = train or MemoryTrainConfig()
+    t0 = time.perf_counter()
+    data = collect_streams(
+        jaxgrid.make(env_id), jax.random.PRNGKey(train.seed), num_envs, num_steps
+    )
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=train.updates, desc="train memory checker", unit="update", leave=False)
+    params, losses = train_memory_checker(
+        data, config, train, None if bar is None else lambda i, loss: bar.update(1)
+    )
+    if bar is not None:
+        bar.close()
+    report = {
+        "env_id": env_id,
+        "num_envs": num_envs,
+        "num_steps": num_steps,
+        "config": dataclasses.asdict(config),
+        "train": dataclasses.asdict(train),
+        "train_positives": int(data["label"].sum()),
+        "final_loss": float(losses[-50:].mean()),
+    }
+    for split in splits:
+        env = jaxgrid.make(env_id, split=split)
+        test = collect_streams(env, jax.random.PRNGKey(train.seed + 1000), num_envs, num_steps)
+        report[split] = evaluate_streams(predict_streams(params, config, test), test, late)
+    report["wall_s"] = time.perf_counter() - t0
+    return report
+
+
+def main(argv=None) -> dict:
+    """``python -m checker.memory``: train and measure a memory checker on HazardRooms."""
+    import argparse
+    import json
+
+    from jaxgrid.io import write_json
+
+    parser = argparse.ArgumentParser(
+        prog="python -m checker.memory",
+        description="Train the recurrent checker on HazardRooms streams; AUROC per type.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--envs", type=int, default=256, help="streams collected per split")
+    parser.add_argument("--steps", type=int, default=160, help="frames per stream")
+    parser.add_argument("--updates", type=int, default=1500, help="training updates")
+    parser.add_argument("--batch-streams", type=int, default=16, help="streams per update")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--late", type=int, default=10, help="steps that make a violation late")
+    parser.add_argument(
+        "--no-memory", action="store_true", help="zero the memory at every frame (ablation)"
+    )
+    parser.add_argument("--json", default=None, help="write the report here")
+    args = parser.parse_args(argv)
+    for flag in ("envs", "steps", "updates", "batch_streams", "late"):
+        if getattr(args, flag) < 1:
+            parser.error(
+                f"--{flag.replace('_', '-')} must be at least 1, got {getattr(args, flag)}"
+            )
+    if args.batch_streams > args.envs:
+        parser.error(f"--batch-streams ({args.batch_streams}) exceeds --envs ({args.envs})")
+    train = MemoryTrainConfig(
+        updates=args.updates, batch_streams=args.batch_streams, seed=args.seed
+    )
+    report = run(
+        num_envs=args.envs,
+        num_steps=args.steps,
+        config=MemoryCheckerConfig(memory=not args.no_memory),
+        train=train,
+        late=args.late,
+        progress=True,
+    )
+    print(json.dumps({k: report[k] for k in ("train", "heldout") if k in report}, indent=1))
+    if args.json:
+        write_json(args.json, report)
+    return report
+
+
+if __name__ == "__main__":
+    main()

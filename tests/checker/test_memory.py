@@ -1,0 +1,152 @@
+"""checker.memory: the recurrent checker's memory, its data's labels and its metrics.
+
+* The memory is zeroed exactly at episode starts: frames before a start cannot change a logit
+  after it, while without a start a frame thirty steps back still does (what a window of
+  five cannot do).
+* Streams from ``BatchedAutoReset(HazardRooms)``: each frame's label is the violation of the step
+  taken from it, starts where episodes begin, tokens constant within an episode.
+* The late-violation mask and the per-type report on hand-made streams; bad configuration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxgrid
+from checker import memory as MC
+
+SMALL = MC.MemoryCheckerConfig(
+    word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4, state_dim=8, memory_dim=16, mlp_dim=16
+)
+
+
+def _random_frames(key, b, t):
+    k1, k2, k3 = jax.random.split(key, 3)
+    obj = jax.random.randint(k1, (b, t, 7, 7), 0, 11)
+    col = jax.random.randint(k2, (b, t, 7, 7), 0, 6)
+    st = jax.random.randint(k3, (b, t, 7, 7), 0, 3)
+    return jnp.stack([obj, col, st], -1).astype(jnp.uint8)
+
+
+@pytest.fixture(scope="module")
+def model_and_params():
+    model = MC.MemoryChecker(SMALL)
+    frames = _random_frames(jax.random.PRNGKey(0), 1, 4)
+    starts = jnp.zeros((1, 4), bool)
+    tokens = jnp.zeros((1, 4, SMALL.max_len), jnp.int32)
+    return model, model.init(jax.random.PRNGKey(1), frames, starts, tokens)
+
+
+def test_memory_resets_at_starts_and_reaches_far_back(model_and_params):
+    model, params = model_and_params
+    t = 40
+    a = _random_frames(jax.random.PRNGKey(2), 1, t)
+    b = a.at[0, :10].set(_random_frames(jax.random.PRNGKey(3), 1, 10)[0])  # other first frames
+    tokens = jnp.ones((1, t, SMALL.max_len), jnp.int32).at[..., 5:].set(0)
+    apply = jax.jit(model.apply)
+    starts = jnp.zeros((1, t), bool).at[0, 0].set(True)
+    la, lb = apply(params, a, starts, tokens), apply(params, b, starts, tokens)
+    assert np.abs(np.asarray(la - lb))[0, 35:].max() > 1e-6  # 25+ steps back still matters
+    restart = starts.at[0, 10].set(True)  # a new episode at frame 10
+    la, lb = apply(params, a, restart, tokens), apply(params, b, restart, tokens)
+    np.testing.assert_array_equal(np.asarray(la)[0, 10:], np.asarray(lb)[0, 10:])
+    assert np.abs(np.asarray(la - lb))[0, :10].max() > 1e-6
+
+
+@pytest.fixture(scope="module")
+def streams():
+    env = jaxgrid.make("HazardRooms-v0")
+    return MC.collect_streams(env, jax.random.PRNGKey(0), 16, 60)
+
+
+def test_stream_labels_are_the_next_steps_violation(streams):
+    d = streams
+    assert d["frames"].shape == (16, 60, 7, 7, 3) and d["tokens"].shape[:2] == (16, 60)
+    assert d["starts"][:, 0].all()
+    # a frame that is not a start was produced by the step taken from the frame before it
+    inner = ~d["starts"][:, 1:]
+    np.testing.assert_array_equal(d["label"][:, :-1][inner], d["violation"][:, 1:][inner])
+    assert (d["violation"][d["starts"]] == 0).all() and (d["cost"][d["starts"]] == 0).all()
+    # the constraint is one sentence per episode
+    same = (d["tokens"][:, 1:] == d["tokens"][:, :-1]).all(-1)
+    assert same[inner].all()
+    assert d["label"].sum() > 0  # the behaviour policy does violate
+
+
+def test_late_mask_and_report_on_hand_made_streams():
+    t = 30
+    d = {
+        "starts": np.zeros((2, t), bool),
+        "cost": np.zeros((2, t)),
+        "violation": np.zeros((2, t), np.int32),
+        "label": np.zeros((2, t), np.int32),
+        "valid": np.ones((2, t), bool),
+        "ctype": np.full((2, t), 1),  # budget
+    }
+    d["starts"][:, 0] = True
+    d["starts"][1, 20] = True
+    d["cost"][0, 3] = 1  # first costly event at step 3 ...
+    d["label"][0, 17] = 1  # ... the violating step 18: 15 steps later
+    d["cost"][1, 5] = 1
+    d["label"][1, 9] = 1  # violation 5 steps after the first cost
+    mask = MC.late_violation_mask(d, late=10)
+    assert mask[0].all() and not mask[1].any()
+    probs = np.where(d["label"] > 0, 0.9, 0.1)
+    report = MC.evaluate_streams(probs, d, late=10)
+    assert report["auroc"] == 1.0 and report["per_type"]["budget"]["auroc"] == 1.0
+    assert report["per_type"]["avoid"]["auroc"] is None  # no such episodes
+    assert report["late_budget"] == {"late": 10, "auroc": 1.0, "positives": 1}
+
+
+def test_training_lowers_the_loss(streams):
+    params, losses = MC.train_memory_checker(
+        streams, SMALL, MC.MemoryTrainConfig(updates=40, batch_streams=8, lr=3e-3)
+    )
+    assert losses[-10:].mean() < losses[:5].mean()
+    probs = MC.predict_streams(params, SMALL, streams)
+    assert probs.shape == streams["label"].shape and ((probs >= 0) & (probs <= 1)).all()
+
+
+@pytest.mark.parametrize(
+    "field, value", [("memory_dim", 0), ("view_size", 6), ("gru_dim", 2.5), ("mlp_dim", True)]
+)
+def test_bad_config_names_the_field(field, value):
+    with pytest.raises(ValueError, match=f"MemoryCheckerConfig.{field}"):
+        MC.MemoryCheckerConfig(**{field: value})
+
+
+def test_too_many_streams_per_batch_is_refused(streams):
+    with pytest.raises(ValueError, match="batch_streams 64 exceeds the 16 streams"):
+        MC.train_memory_checker(streams, SMALL, MC.MemoryTrainConfig(batch_streams=64))
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--envs", "0"], "--envs must be at least 1"),
+        (["--batch-streams", "0"], "--batch-streams must be at least 1"),
+        (["--envs", "8", "--batch-streams", "16"], "--batch-streams (16) exceeds --envs (8)"),
+    ],
+)
+def test_cli_refuses_bad_flags_before_any_work(argv, message, capsys):
+    with pytest.raises(SystemExit):
+        MC.main(argv)
+    assert message in capsys.readouterr().err
+
+
+def test_memoryless_ablation_reads_each_frame_alone(model_and_params):
+    model, params = model_and_params
+    ablation = MC.MemoryChecker(dataclasses.replace(SMALL, memory=False))
+    a = _random_frames(jax.random.PRNGKey(4), 1, 12)
+    b = a.at[0, :6].set(_random_frames(jax.random.PRNGKey(5), 1, 6)[0])
+    starts = jnp.zeros((1, 12), bool).at[0, 0].set(True)
+    tokens = jnp.zeros((1, 12, SMALL.max_len), jnp.int32)
+    la, lb = ablation.apply(params, a, starts, tokens), ablation.apply(params, b, starts, tokens)
+    np.testing.assert_array_equal(np.asarray(la)[0, 6:], np.asarray(lb)[0, 6:])
+    with pytest.raises(ValueError, match="MemoryCheckerConfig.memory must be a bool"):
+        MC.MemoryCheckerConfig(memory=1)
