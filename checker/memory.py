@@ -156,7 +156,8 @@ def collect_streams(env, key: jax.Array, num_envs: int, num_steps: int) -> dict:
 
     ``frames`` (uint8 images), ``tokens``, ``starts`` (the frame is an episode's first),
     ``label`` (the next step violates: ``info["violation"]`` of the step taken from this
-    frame, which belongs to this frame's episode even when that step ends it), ``cost`` and
+    frame, which belongs to this frame's episode even when that step ends it), ``next_cost``
+    (that step's ``info["cost"]``), ``cost`` and
     ``violation`` (of the step that produced the frame; 0 at a start), ``ctype`` and
     ``template`` (``info``'s ``constraint_type`` and ``template_id``) and ``valid`` (a label
     exists: not the last frame).
@@ -182,6 +183,7 @@ def collect_streams(env, key: jax.Array, num_envs: int, num_steps: int) -> dict:
                 "ctype": ts.info["constraint_type"],
                 "template": ts.info["template_id"],
                 "label": new_ts.info["violation"].astype(jnp.int32),
+                "next_cost": new_ts.info["cost"],
             }
             ended = new_ts.terminated | new_ts.truncated
             return (new_states, new_ts, ended), frame
@@ -285,8 +287,9 @@ def late_violation_mask(data: dict, late: int) -> np.ndarray:
 
 
 def evaluate_streams(probs, data: dict, late: int = 10) -> dict:
-    """AUROC of ``probs`` against the labels: overall, per constraint type and on late budget
-    violations (:func:`late_violation_mask`), plus the positive counts behind each."""
+    """AUROC of ``probs`` against the labels: overall, per constraint type, on late budget
+    violations (:func:`late_violation_mask`) and on the budget frames whose next step costs
+    (``costly_budget``: is this entry one too many?), with the positive counts behind each."""
     y, valid = data["label"] > 0, data["valid"]
     report = {"auroc": auroc(y[valid], probs[valid]), "positives": int(y[valid].sum())}
     per_type = {}
@@ -301,6 +304,10 @@ def evaluate_streams(probs, data: dict, late: int = 10) -> dict:
         "auroc": auroc(y[m], probs[m]),
         "positives": int(y[m].sum()),
     }
+    # Counting itself: among budget frames whose next step costs, which ones exceed the
+    # budget? A checker that does not count cannot rank these (AUROC near 0.5).
+    m = valid & budget & (data["next_cost"] > 0)
+    report["costly_budget"] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
     return report
 
 
@@ -315,7 +322,8 @@ def run(
     progress: bool = False,
 ) -> dict:
     """Collect streams on the train split, train, and evaluate on fresh streams of each of
-    ``splits`` (other seeds); returns the report with the wall seconds."""
+    ``splits`` (other seeds). The report holds the settings (``checker_config``,
+    ``train_config``), one :func:`evaluate_streams` entry per split and the wall seconds."""
     import jaxgrid
 
     config = config or MemoryCheckerConfig()
@@ -338,8 +346,8 @@ def run(
         "env_id": env_id,
         "num_envs": num_envs,
         "num_steps": num_steps,
-        "config": dataclasses.asdict(config),
-        "train": dataclasses.asdict(train),
+        "checker_config": dataclasses.asdict(config),
+        "train_config": dataclasses.asdict(train),
         "train_positives": int(data["label"].sum()),
         "final_loss": float(losses[-50:].mean()),
     }

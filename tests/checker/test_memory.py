@@ -76,6 +76,7 @@ def test_stream_labels_are_the_next_steps_violation(streams):
     same = (d["tokens"][:, 1:] == d["tokens"][:, :-1]).all(-1)
     assert same[inner].all()
     assert d["label"].sum() > 0  # the behaviour policy does violate
+    np.testing.assert_array_equal(d["next_cost"][:, :-1][inner], d["cost"][:, 1:][inner])
 
 
 def test_late_mask_and_report_on_hand_made_streams():
@@ -87,6 +88,7 @@ def test_late_mask_and_report_on_hand_made_streams():
         "label": np.zeros((2, t), np.int32),
         "valid": np.ones((2, t), bool),
         "ctype": np.full((2, t), 1),  # budget
+        "next_cost": np.zeros((2, t)),
     }
     d["starts"][:, 0] = True
     d["starts"][1, 20] = True
@@ -101,6 +103,10 @@ def test_late_mask_and_report_on_hand_made_streams():
     assert report["auroc"] == 1.0 and report["per_type"]["budget"]["auroc"] == 1.0
     assert report["per_type"]["avoid"]["auroc"] is None  # no such episodes
     assert report["late_budget"] == {"late": 10, "auroc": 1.0, "positives": 1}
+    assert report["costly_budget"]["auroc"] is None  # no costly next step marked
+    d["next_cost"][0, [2, 17]] = 1  # a first entry (within budget) and the one too many
+    report = MC.evaluate_streams(np.where(d["next_cost"] > 0, 0.5, 0.0), d, late=10)
+    assert report["costly_budget"] == {"auroc": 0.5, "positives": 1}  # not counting: a tie
 
 
 def test_training_lowers_the_loss(streams):
@@ -150,3 +156,37 @@ def test_memoryless_ablation_reads_each_frame_alone(model_and_params):
     np.testing.assert_array_equal(np.asarray(la)[0, 6:], np.asarray(lb)[0, 6:])
     with pytest.raises(ValueError, match="MemoryCheckerConfig.memory must be a bool"):
         MC.MemoryCheckerConfig(memory=1)
+
+
+def test_run_reports_settings_and_every_split(monkeypatch):
+    monkeypatch.setattr(MC, "collect_streams", lambda env, key, n, t: _fake_streams(n, t))
+    report = MC.run(
+        num_envs=4,
+        num_steps=12,
+        config=SMALL,
+        train=MC.MemoryTrainConfig(updates=2, batch_streams=2),
+    )
+    assert report["train_config"]["updates"] == 2 and report[
+        "checker_config"
+    ] == dataclasses.asdict(SMALL)
+    keys = {"auroc", "positives", "per_type", "late_budget", "costly_budget"}
+    assert set(report["train"]) == keys
+    assert "heldout" in report and report["wall_s"] > 0
+
+
+def _fake_streams(n, t):
+    rng = np.random.default_rng(0)
+    starts = np.zeros((n, t), bool)
+    starts[:, 0] = True
+    return {
+        "frames": np.asarray(_random_frames(jax.random.PRNGKey(6), n, t)),
+        "tokens": np.zeros((n, t, SMALL.max_len), np.int32),
+        "starts": starts,
+        "label": (rng.random((n, t)) < 0.2).astype(np.int32),
+        "cost": np.zeros((n, t)),
+        "violation": np.zeros((n, t), np.int32),
+        "ctype": np.ones((n, t), np.int32),
+        "template": np.zeros((n, t), np.int32),
+        "valid": np.ones((n, t), bool),
+        "next_cost": np.zeros((n, t)),
+    }
