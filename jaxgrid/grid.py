@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.extend.random import threefry_2x32
 
 from jaxgrid.constants import EMPTY, EMPTY_CELL, WALL_CELL
 
@@ -114,6 +115,6 @@ def counter_uniforms(key: jax.Array, block, shape: tuple[int, ...]) -> jax.Array
     half = (size + 1) // 2  # each counter pair hashes to two words
     hi = jnp.broadcast_to(jnp.asarray(block, jnp.uint32), (half,))
     lo = jnp.arange(half, dtype=jnp.uint32)
-    bits = jax.extend.random.threefry_2x32(pair, jnp.concatenate([hi, lo]))[:size]
+    bits = threefry_2x32(pair, jnp.concatenate([hi, lo]))[:size]
     mantissa = (bits >> 9) | np.uint32(0x3F800000)
     return (jax.lax.bitcast_convert_type(mantissa, jnp.float32) - 1.0).reshape(shape)
