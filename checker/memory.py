@@ -5,7 +5,7 @@ often the agent has already stepped on lava, or whether it picked up the key twe
 ago. :class:`MemoryChecker` carries a recurrent state through the episode instead:
 
 * each frame is embedded as the window checker embeds it (cell lookups, a 3x3 convolution,
-  a dense layer: :meth:`checker.model.Checker.embed_states`, the same submodule code);
+  a dense layer, the cell lookups through the window checker's ``embed_cells``);
 * a ``GRUCell(memory_dim)`` reads the frame code concatenated with the sentence code (the
   sentence conditions what is worth remembering); its state is zeroed where an episode
   starts, so a batch of streams from auto-resetting envs is read in one scan;
@@ -159,8 +159,9 @@ def collect_streams(env, key: jax.Array, num_envs: int, num_steps: int) -> dict:
     frame, which belongs to this frame's episode even when that step ends it), ``next_cost``
     (that step's ``info["cost"]``), ``cost`` and
     ``violation`` (of the step that produced the frame; 0 at a start), ``ctype`` and
-    ``template`` (``info``'s ``constraint_type`` and ``template_id``) and ``valid`` (a label
-    exists: not the last frame).
+    ``template`` (``info``'s ``constraint_type`` and ``template_id``) and ``valid`` (True
+    everywhere: the scan runs the step out of every frame, the last one included, so every
+    frame has its label; the training loss and the metrics take it as a mask).
     """
     wrapped = BatchedAutoReset(env)
     k_reset, k_run = jax.random.split(key)
