@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 import jaxgrid
+from jaxgrid import language
 
 # In display order: the paper's method first, then its baselines, then the shields (tables
 # and figures use it).
@@ -220,6 +221,13 @@ def check_checker(config: PPOConfig, checker, env) -> None:
     if checker is not None and checker.config.view_size != env.view_size:
         raise ValueError(
             f"checker view_size {checker.config.view_size} != env view_size {env.view_size}"
+        )
+    words = getattr(env, "language", language).vocab_size()
+    if checker is not None and checker.config.vocab_size != words:
+        raise ValueError(
+            f"the checker reads a vocabulary of {checker.config.vocab_size} token ids and "
+            f"{config.env_id} speaks one of {words}: train the checker on this env's language "
+            "(a HazardRooms env needs a checker.memory checker)"
         )
 
 

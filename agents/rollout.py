@@ -1,9 +1,11 @@
 """One step of the training rollout: policy, env, checker, reward shaping, bootstrap, stats.
 
 :func:`env_step` advances ``num_envs`` auto-resetting environments by one step and returns
-the :class:`Transition` PPO learns from. Each step also keeps a per-env ring buffer of the
-checker's embeddings of the last ``window - 1`` frames, so that the checker embeds each frame
-once (not ``window`` times) and scores the window ending at the new observation.
+the :class:`Transition` PPO learns from. Each step also carries the checker's memory per env: for
+the window checker a ring buffer of its embeddings of the last ``window - 1`` frames, so that
+it embeds each frame once (not ``window`` times) and scores the window ending at the new
+observation; for the memory checker (:mod:`checker.memory`) its GRU state, advanced by
+one frame per step.
 Everything here is a pure function of arrays, the network's apply function and the frozen
 checker; :mod:`agents.train` scans it.
 """
@@ -31,7 +33,10 @@ class EnvCarry(struct.PyTreeNode):
     state: Any
     obs: dict
     sentence: jax.Array  # int32: row of the sentence table
-    frames: jax.Array  # float32 (E, n - 1, D): checker embeddings of the last n-1 frames
+    # float32: the checker's memory of the episode up to the current observation, the
+    # embeddings of the last n - 1 frames (E, n - 1, D) of a window checker, the GRU state
+    # (E, H) of a memory checker (checker.memory); a placeholder without a checker
+    frames: jax.Array
     visited: jax.Array  # bool (E, W*H*2): (cell, carrying) pairs seen this episode, or (E, 1)
     ep_return: jax.Array
     ep_length: jax.Array
@@ -73,27 +78,18 @@ def embed(checker, images: jax.Array) -> jax.Array:
     return checker.embed_states(images)
 
 
-def empty_frames(checker, num_envs: int, view_size: int) -> jax.Array:
-    """(E, window - 1, D) embeddings of blank frames: the buffer at an episode's start."""
-    pad = embed(checker, jnp.zeros((1, view_size, view_size, 3), jnp.uint8))
-    # Without a checker one placeholder frame: orbax cannot checkpoint zero-size arrays.
-    n = checker.config.window - 1 if checker is not None else 1
-    return jnp.broadcast_to(pad[:, None, :], (num_envs, n, pad.shape[-1]))
+def start_memory(checker, emb: jax.Array, lang: jax.Array | None) -> jax.Array:
+    """The checker's memory of fresh episodes whose first frames embed to ``emb``: the last
+    frames' embeddings (window checker) or its GRU state (memory checker). Without a checker
+    a (E, 1, 1) placeholder: orbax cannot checkpoint zero-size arrays."""
+    if checker is None:
+        return jnp.zeros(emb.shape[:1] + (1, 1), jnp.float32)
+    return checker.stream_start(emb, lang)
 
 
-def push_frames(checker, frames: jax.Array, emb: jax.Array, start: jax.Array, view_size: int):
-    """Append ``emb`` (E, D) to the ring buffer; where ``start``, older frames are cleared."""
-    if checker is None or frames.shape[1] == 0:
-        return frames
-    pad = empty_frames(checker, frames.shape[0], view_size)
-    older = jnp.where(start[:, None, None], pad, frames)
-    return jnp.concatenate([older[:, 1:], emb[:, None]], axis=1)
-
-
-def checker_prob(checker, lang, frames, emb) -> jax.Array:
-    """P(violation) of the window (frames..., emb) of each env; ``lang`` its sentence codes."""
-    window = jnp.concatenate([frames, emb[:, None]], axis=1)
-    return jax.nn.sigmoid(checker.classify(window, lang))
+def _rows(mask: jax.Array, x: jax.Array) -> jax.Array:
+    """``mask`` (E,) shaped to broadcast against ``x`` (E, ...)."""
+    return mask.reshape(mask.shape + (1,) * (x.ndim - 1))
 
 
 def visits(states, width: int, height: int, enabled: bool) -> jax.Array:
@@ -143,7 +139,8 @@ def env_step(
         obs["image"], obs["direction"], carry.sentence, carry.memory
     )
     # The checker's sentence codes: the table is encoded once (XLA hoists it out of the scan).
-    lang = None if checker is None else checker.encode_language(table[:, :words])[carry.sentence]
+    codes = None if checker is None else checker.encode_language(table[:, :words])
+    lang = None if checker is None else codes[carry.sentence]
     allowed, blocked = None, jnp.zeros(logits.shape[:1])
     if shield is not None:
         allowed, _ = shield.allowed(carry.state, carry.frames, lang)
@@ -157,9 +154,11 @@ def env_step(
     violation = violation_of(ts)
 
     alarm = prob = jnp.zeros_like(ts.reward)
+    frames = carry.frames
     if checker is not None:
         emb = embed(checker, final["image"])
-        prob = checker_prob(checker, lang, carry.frames, emb)
+        logit, frames = checker.stream_step(carry.frames, emb, lang)
+        prob = jax.nn.sigmoid(logit)
         threshold = c.checker_threshold if threshold is None else threshold
         alarm = (prob > threshold).astype(jnp.float32)
     signal = prob if c.soft_checker else alarm
@@ -180,13 +179,16 @@ def env_step(
         states, restarted = env.restart(states, ts.observation, ended)
         ts = ts.replace(observation=restarted, terminated=ts.terminated | ended)
         done = done | ended
-    frames = carry.frames
+    # The constraint is fixed for an episode: look it up only where one began.
+    picked = {k: ts.observation[k] for k in ("constraint", "direction") if k in ts.observation}
+    sentence = masked_map(done, lambda o: sentence_rows(o, table), picked, carry.sentence)
     if checker is not None:
-        # Append the returned observation: the final one where the episode goes on; where it
-        # ended, the window restarts at the next episode's first observation, which only those
-        # few envs embed.
+        # The memory holds the returned observation: the final one where the episode goes on;
+        # where it ended, the next episode's first observation, which only those few envs
+        # embed, read with the new episode's sentence.
         emb = masked_map(done, lambda i: embed(checker, i), ts.observation["image"], emb)
-        frames = push_frames(checker, carry.frames, emb, done, env.view_size)
+        fresh = checker.stream_start(emb, codes[sentence])
+        frames = jax.tree.map(lambda f, o: jnp.where(_rows(done, f), f, o), fresh, frames)
     # Novelty: the step reached a (cell, carrying) pair new to this episode. Where the episode
     # ended, ``states`` is the next episode's start, whose visit opens a new set.
     hit = visits(states, env.width, env.height, c.novelty_bonus != 0)
@@ -226,9 +228,6 @@ def env_step(
         "blocked": jnp.zeros((), jnp.int32) if allowed is None else (~allowed).sum(),
         "blocked_mass": blocked.sum(),
     }
-    # The constraint is fixed for an episode: look it up only where one began.
-    picked = {k: ts.observation[k] for k in ("constraint", "direction") if k in ts.observation}
-    sentence = masked_map(done, lambda o: sentence_rows(o, table), picked, carry.sentence)
     carry = EnvCarry(
         state=states, obs=ts.observation, sentence=sentence, frames=frames, visited=visited,
         ep_return=jnp.where(done, 0.0, ep_return), ep_length=jnp.where(done, 0, ep_length),

@@ -5,7 +5,8 @@ the actions), giving the candidate next observation of each action. A judge scor
 candidate:
 
 * ``checker``: the trained checker's violation probability for the window that ends at the
-  candidate observation (the last ``window - 1`` frames of the episode, then the candidate);
+  candidate observation (the last ``window - 1`` frames of the episode, then the candidate;
+  for a memory checker, its memory of the episode advanced by the candidate);
   an action is blocked where it exceeds ``threshold``. The checker is trained on just-before
   labels, so a candidate is blocked when it leads to a state from which a violation is
   expected next: the shield keeps the agent out of the states the ``checker`` reward mode
@@ -28,7 +29,6 @@ import jax
 import jax.numpy as jnp
 
 from agents.evaluation import violation_of
-from checker import reward
 
 JUDGES = ("checker", "monitor")
 # A blocked action's logit: its probability underflows to 0 and its log-probability stays
@@ -57,8 +57,8 @@ class Shield(struct.PyTreeNode):
     """A judge of candidate actions for a batch of envs.
 
     ``allowed(states, frames, lang) -> (allowed bool (E, A), risk float32 (E, A))`` where
-    ``states`` are the envs' (raw, batched) states, ``frames`` the checker's embeddings of the
-    last ``window - 1`` frames of each env's episode (E, n - 1, D) and ``lang`` the checker's
+    ``states`` are the envs' (raw, batched) states, ``frames`` the checker's memory of each
+    env's episode (:attr:`agents.rollout.EnvCarry.frames`) and ``lang`` the checker's
     sentence codes (E, G); the ``monitor`` judge reads neither.
     """
 
@@ -80,41 +80,41 @@ class Shield(struct.PyTreeNode):
         if self.judge == "monitor":
             return violation_of(ts).astype(jnp.float32)
         emb = self.checker.embed_states(ts.observation["image"])  # (E, A, D)
-        e, a, d = emb.shape
-        older = jnp.broadcast_to(frames[:, None], (e, a) + frames.shape[1:])
-        window = jnp.concatenate([older, emb[:, :, None]], axis=2).reshape(e * a, -1, d)
-        codes = jnp.repeat(lang, a, axis=0)
-        return jax.nn.sigmoid(self.checker.classify(window, codes)).reshape(e, a)
+        e, a = emb.shape[:2]
+        each = lambda x: jnp.repeat(x, a, axis=0)  # noqa: E731  (row e -> rows e*a .. e*a+a-1)
+        memory = jax.tree.map(each, frames)
+        logit, _ = self.checker.stream_step(memory, emb.reshape((e * a,) + emb.shape[2:]),
+                                            each(lang))  # fmt: skip
+        return jax.nn.sigmoid(logit).reshape(e, a)
 
     def allowed(self, states, frames: jax.Array, lang: jax.Array):
         """``(allowed bool (E, A), risk (E, A))``: :func:`allow_least_risky` of :meth:`risk`."""
         risk = self.risk(states, frames, lang)
         return allow_least_risky(risk, self.threshold), risk
 
-    # -- episodes played without the learner's ring buffer (evaluation) -----------------
+    # -- episodes played without the learner's carry (evaluation) ---------------------
     def start(self, obs: dict):
-        """The memory of fresh episodes whose first observations are ``obs``: the raw window
-        ending at the current observation, and the checker's codes of each sentence."""
+        """The judge's memory of fresh episodes whose first observations are ``obs``: the
+        checker's memory (:meth:`~checker.trained.TrainedChecker.stream_start`) and its codes
+        of each sentence."""
         if self.judge == "monitor":
             return ()
-        e, n = obs["image"].shape[0], self.checker.config.window
-        empty = jnp.zeros((e, n) + obs["image"].shape[1:], jnp.uint8)
-        window = reward.push(empty, obs["image"], jnp.ones((e,), bool))
-        return window, self.checker.encode_language(obs["constraint"])
+        lang = self.checker.encode_language(obs["constraint"])
+        return self.checker.stream_start(self.checker.embed_states(obs["image"]), lang), lang
 
     def observe(self, memory, obs: dict):
         """The memory after the envs moved on to ``obs`` (same episodes)."""
         if self.judge == "monitor":
             return memory
-        window, lang = memory
-        return reward.push(window, obs["image"], jnp.zeros(window.shape[:1], bool)), lang
+        frames, lang = memory
+        emb = self.checker.embed_states(obs["image"])
+        return self.checker.stream_step(frames, emb, lang)[1], lang
 
     def allowed_now(self, memory, states):
         """:meth:`allowed` from a :meth:`start`/:meth:`observe` memory."""
         if self.judge == "monitor":
             return self.allowed(states, None, None)
-        window, lang = memory
-        return self.allowed(states, self.checker.embed_states(window[:, 1:]), lang)
+        return self.allowed(states, *memory)
 
 
 def make_shield(env, judge: str, checker=None, threshold: float = 0.5) -> Shield:

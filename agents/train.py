@@ -177,14 +177,15 @@ class Learner(struct.PyTreeNode):
             net_key, obs["image"][:1], obs["direction"][:1], self.table[:1],
             method=ActorCritic.init_all,
         )  # fmt: skip
-        frames = rollout.empty_frames(self.checker, c.num_envs, env.view_size)
+        sentence = rollout.sentence_rows(obs, self.table)
+        lang = None
         if self.checker is not None:
-            start = jnp.ones((c.num_envs,), bool)
-            emb = rollout.embed(self.checker, obs["image"])
-            frames = rollout.push_frames(self.checker, frames, emb, start, env.view_size)
+            lang = self.checker.encode_language(self.table[:, : self.words])[sentence]
+        emb = rollout.embed(self.checker, obs["image"])
+        frames = rollout.start_memory(self.checker, emb, lang)
         zeros = jnp.zeros((c.num_envs,), jnp.float32)
         carry = EnvCarry(
-            state=states, obs=obs, sentence=rollout.sentence_rows(obs, self.table),
+            state=states, obs=obs, sentence=sentence,
             frames=frames, visited=rollout.visits(states, env.width, env.height,
                                                   c.novelty_bonus != 0),
             ep_return=zeros, ep_length=zeros.astype(jnp.int32), alarmed=zeros > 0,

@@ -26,8 +26,10 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import flax.linen as nn
+import flax.struct as struct
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -35,6 +37,7 @@ import optax
 
 from checker.metrics import auroc
 from checker.model import NUM_COLOURS, NUM_OBJECTS, NUM_STATES, embed_cells, encode_sentence
+from checker.trained import check_vocab, read_meta, read_params, write_params
 from jaxgrid import hazard_language as HL
 from jaxgrid.wrappers import BatchedAutoReset
 
@@ -106,11 +109,24 @@ class MemoryChecker(nn.Module):
         if not self.config.memory:
             starts = jnp.ones_like(starts)
         codes = self.embed_frames(frames)
-        lang = encode_sentence(self.word_embed, self.sentence_gru, tokens.reshape(b * t, -1))
-        lang = lang.reshape(b, t, -1)
+        lang = self.encode_language(tokens)
         carry = jnp.zeros((b, self.config.memory_dim), jnp.float32)
         memory = self.read(carry, codes, starts, lang)
         return self.classify(memory, codes, lang)
+
+    def encode_language(self, tokens):
+        """int32 ``(..., L)`` tokens -> sentence codes ``(..., gru_dim)``."""
+        lead = tokens.shape[:-1]
+        flat = tokens.reshape(-1, tokens.shape[-1])
+        return encode_sentence(self.word_embed, self.sentence_gru, flat).reshape(lead + (-1,))
+
+    def advance(self, carry, codes, lang):
+        """One step of every stream: ``(logit (B,), memory (B, memory_dim))`` after reading
+        frame codes ``(B, state_dim)`` with sentence codes ``(B, gru_dim)``. ``carry`` is the
+        memory before the frame (zeros before an episode's first)."""
+        forget = jnp.full(codes.shape[:1] + (1,), not self.config.memory)  # the ablation
+        carry, memory = self.memory(carry, (codes[:, None], forget, lang[:, None]))
+        return self.classify(memory[:, 0], codes, lang), carry
 
     def embed_frames(self, frames):
         x = jnp.asarray(frames, jnp.int32)
@@ -144,6 +160,84 @@ class _MemoryStep(nn.Module):
             carry, jnp.concatenate([code, lang], -1)
         )
         return carry, out
+
+
+class TrainedMemoryChecker(struct.PyTreeNode):
+    """Parameters (the only pytree leaf) + configuration of a trained :class:`MemoryChecker`.
+
+    It offers the learner's stream interface of the window checker
+    (:class:`checker.trained.TrainedChecker`): ``embed_states``, ``encode_language``,
+    ``stream_start`` and ``stream_step``, whose memory is the GRU state ``(E, memory_dim)``
+    instead of the last frames, so PPO carries it per env and its shield scores candidates
+    with it. Pure and jittable.
+    """
+
+    params: Any
+    config: MemoryCheckerConfig = struct.field(pytree_node=False)
+    env_id: str = struct.field(pytree_node=False, default="")
+    threshold: float = struct.field(pytree_node=False, default=0.5)
+    kind = "memory"
+
+    @property
+    def module(self) -> MemoryChecker:
+        return MemoryChecker(self.config)
+
+    def logits(self, frames, starts, tokens) -> jax.Array:
+        """Streams ``(B, T, ...)`` -> logits ``(B, T)`` (:meth:`MemoryChecker.__call__`)."""
+        return self.module.apply(self.params, frames, starts, tokens)
+
+    def embed_states(self, frames: jax.Array) -> jax.Array:
+        return self.module.apply(self.params, frames, method=MemoryChecker.embed_frames)
+
+    def encode_language(self, tokens: jax.Array) -> jax.Array:
+        return self.module.apply(self.params, tokens, method=MemoryChecker.encode_language)
+
+    def stream_step(self, memory: jax.Array, emb: jax.Array, lang: jax.Array):
+        """``(logit (E,), memory)`` after reading the frame embedded as ``emb``."""
+        return self.module.apply(self.params, memory, emb, lang, method=MemoryChecker.advance)
+
+    def stream_start(self, emb: jax.Array, lang: jax.Array) -> jax.Array:
+        """The memory of episodes whose first frames embed to ``emb``."""
+        zeros = jnp.zeros((emb.shape[0], self.config.memory_dim), jnp.float32)
+        return self.stream_step(zeros, emb, lang)[1]
+
+
+def new_memory_checker(config: MemoryCheckerConfig, key: jax.Array, **meta):
+    """An untrained :class:`TrainedMemoryChecker` (``meta``: ``env_id``, ``threshold``)."""
+    return TrainedMemoryChecker(params=_init(config, key), config=config, **meta)
+
+
+def _init(config: MemoryCheckerConfig, key: jax.Array):
+    v, lead = config.view_size, (1, 1)
+    frames = jnp.zeros(lead + (v, v, 3), jnp.uint8)
+    tokens = jnp.zeros(lead + (config.max_len,), jnp.int32)
+    return jax.jit(MemoryChecker(config).init)(key, frames, jnp.ones(lead, bool), tokens)
+
+
+def save(trained: TrainedMemoryChecker, directory) -> str:
+    """Write the checker to ``directory``; :func:`checker.load` reads it back."""
+    meta = {
+        "kind": "memory",
+        "config": dataclasses.asdict(trained.config),
+        "env_id": trained.env_id,
+        "threshold": trained.threshold,
+        "vocab": list(HL.VOCAB),
+        "max_len": HL.MAX_LEN,
+    }
+    return write_params(trained.params, directory, meta)
+
+
+def load(directory, meta: dict | None = None) -> TrainedMemoryChecker:
+    """The memory checker saved in ``directory`` (errors as :func:`checker.load`'s)."""
+    meta = read_meta(directory) if meta is None else meta
+    check_vocab(meta, f"checker {directory}", HL)
+    config = MemoryCheckerConfig(**meta["config"])
+    template = jax.eval_shape(lambda: _init(config, jax.random.PRNGKey(0)))
+    params = read_params(directory, template, meta)
+    return TrainedMemoryChecker(
+        params=params, config=config, env_id=str(meta["env_id"]),
+        threshold=float(meta["threshold"]),
+    )  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------ data

@@ -62,6 +62,24 @@ class TrainedChecker(struct.PyTreeNode):
     def classify(self, state_emb: jax.Array, lang: jax.Array) -> jax.Array:
         return self.module.apply(self.params, state_emb, lang, method=Checker.classify)
 
+    # -- streams: what a learner carries per env (shared with the memory checker) --------
+    def stream_start(self, emb: jax.Array, lang: jax.Array) -> jax.Array:
+        """The memory of episodes whose first frames embed to ``emb`` (E, D): the embeddings
+        of the last ``window - 1`` frames (E, n - 1, D), blank frames before the first.
+        ``lang`` is unused (the window is read with the sentence when it is scored)."""
+        del lang
+        v = self.config.view_size
+        blank = self.embed_states(jnp.zeros((1, v, v, 3), jnp.uint8))
+        n = self.config.window
+        older = jnp.broadcast_to(blank[:, None], (emb.shape[0], max(n - 2, 0), emb.shape[-1]))
+        return jnp.concatenate([older, emb[:, None]], axis=1)[:, max(2 - n, 0) :]
+
+    def stream_step(self, memory: jax.Array, emb: jax.Array, lang: jax.Array):
+        """``(logit (E,), memory)``: the violation logit of the window ending at the frame
+        embedded as ``emb``, and the memory with that frame in it."""
+        window = jnp.concatenate([memory, emb[:, None]], axis=1)
+        return self.classify(window, lang), window[:, 1:]
+
 
 def new_checker(
     config: CheckerConfig,
@@ -81,70 +99,65 @@ def new_checker(
     )
 
 
-def _vocab_meta() -> dict:
-    return {"vocab": list(language.VOCAB), "max_len": language.MAX_LEN}
+def _vocab_meta(lang=language) -> dict:
+    return {"vocab": list(lang.VOCAB), "max_len": lang.MAX_LEN}
 
 
-def check_vocab(meta: dict, where: str) -> None:
-    """Raise ``ValueError`` if ``meta`` (with ``vocab``/``max_len``) is not this vocabulary."""
+def check_vocab(meta: dict, where: str, lang=language) -> None:
+    """Raise ``ValueError`` if ``meta`` (with ``vocab``/``max_len``) is not the vocabulary of
+    ``lang`` (a language module: :mod:`jaxgrid.language` or :mod:`jaxgrid.hazard_language`)."""
     vocab, max_len = meta.get("vocab"), meta.get("max_len")
-    if vocab != list(language.VOCAB) or max_len != language.MAX_LEN:
+    if vocab != list(lang.VOCAB) or max_len != lang.MAX_LEN:
         raise ValueError(
             f"{where} was made for another constraint vocabulary (vocab of "
             f"{len(vocab) if isinstance(vocab, list) else vocab!r} words, MAX_LEN {max_len}); "
-            f"this jaxgrid.language has {language.vocab_size()} words and MAX_LEN "
-            f"{language.MAX_LEN}, so its token ids would mean other words"
+            f"this {lang.__name__} has {lang.vocab_size()} words and MAX_LEN "
+            f"{lang.MAX_LEN}, so its token ids would mean other words"
         )
 
 
-def save(trained: TrainedChecker, directory: str | os.PathLike) -> str:
-    """Write ``params.msgpack`` and ``config.json`` under ``directory`` (created if needed).
-
-    Each file is written atomically, parameters first: a reader never sees half a file, and
-    a crash between the two leaves a ``config.json`` whose checksum the new parameters fail.
-    """
+def write_params(params, directory: str | os.PathLike, meta: dict) -> str:
+    """Write ``params`` to ``params.msgpack`` and ``meta`` with its checksum to
+    ``config.json``, each atomically, parameters first: a reader never sees half a file, and
+    a crash between the two leaves a ``config.json`` whose checksum the new parameters fail."""
     directory = os.fspath(directory)
-    data = serialization.to_bytes(jax.device_get(trained.params))
+    data = serialization.to_bytes(jax.device_get(params))
     atomic_write(os.path.join(directory, PARAMS_FILE), data)
+    meta = {"format_version": FORMAT_VERSION, "params_sha256": sha256_bytes(data), **meta}
+    write_json(os.path.join(directory, CONFIG_FILE), meta)
+    return directory
+
+
+def save(trained: TrainedChecker, directory: str | os.PathLike) -> str:
+    """Write ``params.msgpack`` and ``config.json`` under ``directory`` (created if needed)."""
     meta = {
-        "format_version": FORMAT_VERSION,
-        "params_sha256": sha256_bytes(data),
         "config": trained.config.to_dict(),
         "lookahead": trained.lookahead,
         "env_id": trained.env_id,
         "threshold": trained.threshold,
         **_vocab_meta(),
     }
-    write_json(os.path.join(directory, CONFIG_FILE), meta)
-    return directory
+    return write_params(trained.params, directory, meta)
 
 
-def params_sha256(directory: str | os.PathLike) -> str | None:
-    """The checksum of the parameters saved in ``directory`` (from its ``config.json``);
-    ``None`` for a directory saved before checksums were recorded. A report records it, so
-    that a report and a checker can be matched."""
-    return read_json(os.path.join(os.fspath(directory), CONFIG_FILE)).get("params_sha256")
-
-
-def load(directory: str | os.PathLike) -> TrainedChecker:
-    """Restore a :class:`TrainedChecker` written by :func:`save`, ready to use.
-
-    Raises ``FileNotFoundError`` naming the missing path, ``ValueError`` naming the file for a
-    checker made for another vocabulary or ``MAX_LEN``, or a damaged file (a parameter file
-    that fails the checksum recorded in ``config.json``; a directory saved before checksums
-    were recorded is loaded without that check).
-    """
+def read_meta(directory: str | os.PathLike) -> dict:
+    """A checker directory's ``config.json``; ``FileNotFoundError`` naming what is missing."""
     directory = os.fspath(directory)
     if not os.path.isdir(directory):
         raise FileNotFoundError(f"checker directory not found: {directory}")
-    cfg_path = os.path.join(directory, CONFIG_FILE)
-    params_path = os.path.join(directory, PARAMS_FILE)
-    for p in (cfg_path, params_path):
+    for name in (CONFIG_FILE, PARAMS_FILE):
+        p = os.path.join(directory, name)
         if not os.path.isfile(p):
             raise FileNotFoundError(f"checker file not found: {p}")
-    meta = read_json(cfg_path)
-    check_vocab(meta, f"checker {directory}")
-    config = CheckerConfig.from_dict(meta["config"])
+    return read_json(os.path.join(directory, CONFIG_FILE))
+
+
+def read_params(directory: str | os.PathLike, template, meta: dict):
+    """The parameters saved in ``directory``, checked against ``meta``'s checksum and the
+    shapes of ``template``; ``ValueError`` naming the file where they are damaged."""
+    directory = os.fspath(directory)
+    cfg_path = os.path.join(directory, CONFIG_FILE)
+    params_path = os.path.join(directory, PARAMS_FILE)
     with open(params_path, "rb") as f:
         data = f.read()
     recorded = meta.get("params_sha256")
@@ -158,13 +171,39 @@ def load(directory: str | os.PathLike) -> TrainedChecker:
         state = serialization.msgpack_restore(data)
     except Exception as e:  # msgpack's errors share no base class with a clear message
         raise ValueError(f"{params_path}: damaged parameter file ({type(e).__name__}: {e})") from e
-    template = params_shape(config)
     params = serialization.from_state_dict(template, state)
     want = jax.tree.map(lambda s: (s.shape, s.dtype), template)
     got = jax.tree.map(lambda a: (a.shape, a.dtype), params)
     if jax.tree.structure(want) != jax.tree.structure(got) or want != got:
         raise ValueError(f"{params_path} does not hold parameters of the checker in {cfg_path}")
-    params = jax.tree.map(jnp.asarray, params)
+    return jax.tree.map(jnp.asarray, params)
+
+
+def params_sha256(directory: str | os.PathLike) -> str | None:
+    """The checksum of the parameters saved in ``directory`` (from its ``config.json``);
+    ``None`` for a directory saved before checksums were recorded. A report records it, so
+    that a report and a checker can be matched."""
+    return read_json(os.path.join(os.fspath(directory), CONFIG_FILE)).get("params_sha256")
+
+
+def load(directory: str | os.PathLike):
+    """Restore a checker written by :func:`save` (a :class:`TrainedChecker`) or by
+    :func:`checker.memory.save` (a :class:`~checker.memory.TrainedMemoryChecker`), ready to
+    use.
+
+    Raises ``FileNotFoundError`` naming the missing path, ``ValueError`` naming the file for a
+    checker made for another vocabulary or ``MAX_LEN``, or a damaged file (a parameter file
+    that fails the checksum recorded in ``config.json``; a directory saved before checksums
+    were recorded is loaded without that check).
+    """
+    meta = read_meta(directory)
+    if meta.get("kind") == "memory":
+        from checker import memory
+
+        return memory.load(directory, meta)
+    check_vocab(meta, f"checker {os.fspath(directory)}")
+    config = CheckerConfig.from_dict(meta["config"])
+    params = read_params(directory, params_shape(config), meta)
     return TrainedChecker(
         params=params,
         config=config,

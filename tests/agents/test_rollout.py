@@ -133,9 +133,10 @@ def test_checker_embedding_ring_buffer_matches_raw_frames(rollouts, tiny_checker
     frames_before = np.concatenate([runner0.env.frames[None], carries.frames[:-1]])
     sentence_before = np.concatenate([runner0.env.sentence[None], carries.sentence[:-1]])
     codes = tiny_checker.encode_language(learner.table[:, : learner.words])
-    prob = fast_jit(jax.vmap(lambda f, e, s: rollout.checker_prob(tiny_checker, codes[s], f, e)))(
+    logit = fast_jit(jax.vmap(lambda f, e, s: tiny_checker.stream_step(f, e, codes[s])[0]))(
         frames_before, embed(ref["final_image"]), sentence_before
     )
+    prob = jax.nn.sigmoid(logit)
     np.testing.assert_allclose(prob, ref["prob"], atol=1e-5)
     assert np.ptp(ref["prob"]) > 1e-3  # a random checker still gives varied probabilities
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -190,3 +191,34 @@ def _fake_streams(n, t):
         "valid": np.ones((n, t), bool),
         "next_cost": np.zeros((n, t)),
     }
+
+
+def test_saved_memory_checker_loads_back_and_refuses_damage(tmp_path):
+    import checker
+
+    trained = MC.new_memory_checker(SMALL, jax.random.PRNGKey(3), env_id="HazardRooms-v0")
+    MC.save(trained, tmp_path / "m")
+    back = checker.load(tmp_path / "m")  # the one loader tells the two kinds apart
+    assert isinstance(back, MC.TrainedMemoryChecker) and back.config == SMALL
+    chex.assert_trees_all_equal(back.params, trained.params)
+    params = tmp_path / "m" / "params.msgpack"
+    params.write_bytes(params.read_bytes()[:-7])
+    with pytest.raises(ValueError, match="damaged parameter file"):
+        checker.load(tmp_path / "m")
+
+
+def test_stream_steps_equal_the_checker_over_the_whole_stream():
+    """``stream_start`` then ``stream_step`` frame by frame (what PPO carries per env) gives
+    the logits of the stream read at once."""
+    trained = MC.new_memory_checker(SMALL, jax.random.PRNGKey(4))
+    rng = np.random.default_rng(0)
+    frames = jnp.asarray(rng.integers(0, 6, (3, 9, 7, 7, 3)), jnp.uint8)
+    tokens = jnp.asarray(rng.integers(1, 20, (3, 9, SMALL.max_len)), jnp.int32)
+    tokens = jnp.broadcast_to(tokens[:, :1], tokens.shape)  # one sentence per stream
+    starts = jnp.zeros((3, 9), bool).at[:, 0].set(True)
+    whole = trained.logits(frames, starts, tokens)
+    emb, lang = trained.embed_states(frames), trained.encode_language(tokens)
+    memory = trained.stream_start(emb[:, 0], lang[:, 0])
+    for t in range(1, 9):
+        logit, memory = trained.stream_step(memory, emb[:, t], lang[:, t])
+        np.testing.assert_allclose(logit, whole[:, t], atol=1e-5)
