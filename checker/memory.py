@@ -297,13 +297,30 @@ def collect_streams(env, key: jax.Array, num_envs: int, num_steps: int) -> dict:
 
 @dataclasses.dataclass(frozen=True)
 class MemoryTrainConfig:
-    """Optimisation settings of :func:`train_memory_checker`."""
+    """Data and optimisation settings of a memory checker (:func:`train_memory_checker`;
+    ``streams`` and ``steps`` size what :func:`collect_streams` gathers for it)."""
 
-    updates: int = 1500
-    batch_streams: int = 16
-    lr: float = 1e-3
+    streams: int = 1024  # streams collected, for training and again for the test
+    steps: int = 160  # frames per stream
+    updates: int = 1500  # training updates
+    batch_streams: int = 16  # streams per update
+    lr: float = 1e-3  # Adam step size
     positive_weight: float = 10.0  # violations are rare: weight their loss
     seed: int = 0
+
+    def __post_init__(self):
+        me = type(self).__name__
+        for name in ("streams", "steps", "updates", "batch_streams"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{me}.{name} must be an int >= 1, got {value!r}")
+        for name in ("lr", "positive_weight"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{me}.{name} must be > 0, got {getattr(self, name)!r}")
+        if self.batch_streams > self.streams:
+            raise ValueError(
+                f"{me}.batch_streams ({self.batch_streams}) exceeds {me}.streams ({self.streams})"
+            )
 
 
 def _loss(model, params, batch, positive_weight):
@@ -408,21 +425,26 @@ def evaluate_streams(probs, data: dict, late: int = 10) -> dict:
 
 def run(
     env_id: str = "HazardRooms-v0",
-    num_envs: int = 256,
-    num_steps: int = 160,
+    num_envs: int | None = None,
+    num_steps: int | None = None,
     config: MemoryCheckerConfig | None = None,
     train: MemoryTrainConfig | None = None,
     splits: Sequence[str] = ("train", "heldout"),
     late: int = 10,
     progress: bool = False,
+    out: str | None = None,
 ) -> dict:
     """Collect streams on the train split, train, and evaluate on fresh streams of each of
     ``splits`` (other seeds). The report holds the settings (``checker_config``,
-    ``train_config``), one :func:`evaluate_streams` entry per split and the wall seconds."""
+    ``train_config``), one :func:`evaluate_streams` entry per split and the wall seconds.
+    ``num_envs`` and ``num_steps`` (None: ``train.streams`` and ``train.steps``) size each
+    split's streams; with ``out`` the trained checker is saved there (:func:`save`)."""
     import jaxgrid
 
     config = config or MemoryCheckerConfig()
     train = train or MemoryTrainConfig()
+    num_envs = train.streams if num_envs is None else num_envs
+    num_steps = train.steps if num_steps is None else num_steps
     t0 = time.perf_counter()
     data = collect_streams(
         jaxgrid.make(env_id), jax.random.PRNGKey(train.seed), num_envs, num_steps
@@ -437,6 +459,8 @@ def run(
     )
     if bar is not None:
         bar.close()
+    if out is not None:
+        save(TrainedMemoryChecker(params=params, config=config, env_id=env_id), out)
     report = {
         "env_id": env_id,
         "num_envs": num_envs,
@@ -466,16 +490,20 @@ def main(argv=None) -> dict:
         description="Train the recurrent checker on HazardRooms streams; AUROC per type.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("--envs", type=int, default=256, help="streams collected per split")
-    parser.add_argument("--steps", type=int, default=160, help="frames per stream")
-    parser.add_argument("--updates", type=int, default=1500, help="training updates")
-    parser.add_argument("--batch-streams", type=int, default=16, help="streams per update")
+    d = MemoryTrainConfig()
+    parser.add_argument("--envs", type=int, default=d.streams, help="streams collected per split")
+    parser.add_argument("--steps", type=int, default=d.steps, help="frames per stream")
+    parser.add_argument("--updates", type=int, default=d.updates, help="training updates")
+    parser.add_argument(
+        "--batch-streams", type=int, default=d.batch_streams, help="streams per update"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--late", type=int, default=10, help="steps that make a violation late")
     parser.add_argument(
         "--no-memory", action="store_true", help="zero the memory at every frame (ablation)"
     )
     parser.add_argument("--json", default=None, help="write the report here")
+    parser.add_argument("--out", default=None, help="save the trained checker in this directory")
     args = parser.parse_args(argv)
     for flag in ("envs", "steps", "updates", "batch_streams", "late"):
         if getattr(args, flag) < 1:
@@ -485,15 +513,15 @@ def main(argv=None) -> dict:
     if args.batch_streams > args.envs:
         parser.error(f"--batch-streams ({args.batch_streams}) exceeds --envs ({args.envs})")
     train = MemoryTrainConfig(
-        updates=args.updates, batch_streams=args.batch_streams, seed=args.seed
-    )
+        streams=args.envs, steps=args.steps, updates=args.updates,
+        batch_streams=args.batch_streams, seed=args.seed,
+    )  # fmt: skip
     report = run(
-        num_envs=args.envs,
-        num_steps=args.steps,
         config=MemoryCheckerConfig(memory=not args.no_memory),
         train=train,
         late=args.late,
         progress=True,
+        out=args.out,
     )
     print(json.dumps({k: report[k] for k in ("train", "heldout") if k in report}, indent=1))
     if args.json:

@@ -248,8 +248,12 @@ def reuse_checker(cfg):
     report of other parameters is refused."""
     path = Path(cfg.checker)
     trained = chk.load(path)
+    kind = getattr(trained, "kind", "window")
+    if kind != cfg.checker_kind:
+        raise ValueError(f"--checker {path}: a {kind} checker, and {cfg.experiment} trains its "
+                         f"agents with a {cfg.checker_kind} checker")  # fmt: skip
     window = cfg.checker_train.window
-    if trained.config.window != window:
+    if kind == "window" and trained.config.window != window:
         raise ValueError(f"--checker {path}: window {trained.config.window} != --window "
                          f"{window}")  # fmt: skip
     digest = params_sha256(path)
@@ -377,6 +381,18 @@ def _comparisons(methods: dict) -> dict:
     return out
 
 
+def _memory_extras(checker_report: dict) -> dict:
+    """A memory checker's test AUROC per constraint type, on late budget violations and on
+    counting itself (``auroc_by``); nothing for a window checker."""
+    test = (checker_report.get("details") or {}).get("test") or {}
+    if "per_type" not in test:
+        return {}
+    by = {t: v["auroc"] for t, v in test["per_type"].items()}
+    by.update(late_budget=test["late_budget"]["auroc"],
+              costly_budget=test["costly_budget"]["auroc"])  # fmt: skip
+    return {"auroc_by": by}
+
+
 def assemble(cfg, out: Path, runs: dict, checker_report: dict, total_s: float) -> dict:
     """The ``results.json`` object (schema: :data:`experiments.report.RESULTS_SCHEMA`)."""
     methods = {mode: _method(r, cfg.final_episodes) for mode, r in runs.items()}
@@ -388,6 +404,8 @@ def assemble(cfg, out: Path, runs: dict, checker_report: dict, total_s: float) -
             "heldout": checker_report.get("heldout"),
             "transfer": checker_report.get("transfer"),
             "trained_on": cfg.checker_env_id,
+            "kind": cfg.checker_kind,
+            **_memory_extras(checker_report),
         },
         "methods": methods,
         "comparisons": _comparisons(methods),

@@ -50,9 +50,12 @@ from tyro.constructors import PrimitiveConstructorSpec
 
 from agents.config import REWARD_MODES, PPOConfig, check_sweep
 from checker import cli
+from checker.memory import MemoryTrainConfig
 from checker.train import CheckerTrainConfig
-from experiments import phases
+from experiments import memory_phase, phases
 from jaxgrid import rundir
+
+CHECKER_KINDS = ("window", "memory")
 
 
 def _modes(args: list[str]) -> tuple[str, ...]:
@@ -103,6 +106,12 @@ class ExperimentConfig:
     # The checker's training (--checker-*): from --seed, and measured at the threshold at
     # which the agents' checker alarms (--checker-threshold).
     checker_train: CheckerTrainConfig = CheckerTrainConfig(epochs=40)
+    # "window": phases a-c above (the paper's); "memory": a recurrent checker trained on
+    # streams of the agents' env under a random policy, for constraints that count
+    # (experiments.memory_phase; no flag, the scenario sets it)
+    checker_kind: str = "window"
+    # The memory checker's data and training (--memory-*; checker_kind "memory" only)
+    memory_checker: MemoryTrainConfig = MemoryTrainConfig(streams=512, updates=600)
 
     def __post_init__(self):
         if self.checker_env_id is None:
@@ -110,7 +119,12 @@ class ExperimentConfig:
         synced = dataclasses.replace(self.checker_train, seed=self.ppo.seed,
                                      threshold=self.ppo.checker_threshold)  # fmt: skip
         object.__setattr__(self, "checker_train", synced)
+        synced = dataclasses.replace(self.memory_checker, seed=self.ppo.seed)
+        object.__setattr__(self, "memory_checker", synced)
         me = type(self).__name__
+        if self.checker_kind not in CHECKER_KINDS:
+            raise ValueError(f"{me}.checker_kind must be one of {CHECKER_KINDS}, got "
+                             f"{self.checker_kind!r}")  # fmt: skip
         if self.quick and self.paper:
             raise ValueError(f"{me}.quick and {me}.paper exclude each other")
         unknown = [m for m in self.modes if m not in REWARD_MODES]
@@ -132,7 +146,9 @@ class ExperimentConfig:
             raise ValueError(f"{me}.out {self.out}: not writable, it is a file (an output "
                              "directory is needed)")  # fmt: skip
         settings = self.checker_train
-        if self.checker is None and settings.training_rows(self.checker_samples) < (
+        if self.checker is None and self.checker_kind == "window" and settings.training_rows(
+            self.checker_samples
+        ) < (
             settings.batch_size
         ):
             raise ValueError(
@@ -189,6 +205,7 @@ PRESETS: dict[str, dict] = {
     "quick": dict(quick=True, machine_baseline=False, seeds=2, behaviour_steps=8_192,
                   checker_samples=512, collect_max_steps=256, curve_points=2, final_episodes=32,
                   checker_train=dict(epochs=3),
+                  memory_checker=dict(streams=16, steps=48, updates=10, batch_streams=8),
                   ppo=dict(total_timesteps=16_384, num_envs=32, eval_episodes=16)),
     # --paper: the paper's budget (1e7 steps), 10 seeds, 50 evaluation episodes a checkpoint.
     "paper": dict(paper=True, seeds=10, behaviour_steps=1_000_000, curve_points=40,
@@ -240,6 +257,8 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     keep = {} if keep is None else keep
     if cfg.checker is not None:
         trained, checker_report = phases.reuse_checker(cfg)
+    elif cfg.checker_kind == "memory":  # a-c: streams, the recurrent checker, its report
+        trained, checker_report = memory_phase.train_memory_checker(cfg, out)
     else:
         behaviour = keep["behaviour"] = phases.behaviour_agent(cfg, out)  # a
         data = keep["data"] = phases.checker_data(cfg, out, behaviour)  # b
@@ -268,13 +287,26 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
 # Flags of the nested configs: PPO's are their own names, the checker's training ones
 # --checker-<name>; None: set by the pipeline, no flag.
 FLAGS: cli.Names = {
-    ExperimentConfig: {"experiment": None, "checker_env_id": None},
+    ExperimentConfig: {"experiment": None, "checker_env_id": None, "checker_kind": None},
     PPOConfig: {"total_timesteps": "steps", "env_id": None, "env_kwargs": None,
                 "reward_mode": None, "eval_every": None},
     CheckerTrainConfig: {**{f.name: f"checker_{f.name}"
                             for f in dataclasses.fields(CheckerTrainConfig)},
                          "window": "window", "lookahead": "lookahead", "seed": None,
                          "threshold": None},
+    MemoryTrainConfig: {**{f.name: f"memory_{f.name}"
+                           for f in dataclasses.fields(MemoryTrainConfig)}, "seed": None},
+}  # fmt: skip
+PHASES = {"window": "behaviour agent, checker data, checker",
+          "memory": "random-policy streams, memory checker"}  # fmt: skip
+# Flags that mean nothing for one kind of checker, hidden from its experiments' command line.
+UNUSED_FLAGS: dict[str, cli.Names] = {
+    "window": {MemoryTrainConfig: {f.name: None for f in dataclasses.fields(MemoryTrainConfig)}},
+    "memory": {
+        ExperimentConfig: {"behaviour_steps": None, "checker_samples": None,
+                           "collect_max_steps": None},
+        CheckerTrainConfig: {f.name: None for f in dataclasses.fields(CheckerTrainConfig)},
+    },
 }  # fmt: skip
 
 
@@ -286,13 +318,13 @@ def parse_args(argv, scenario_cfg: ExperimentConfig, hide: cli.Names | None = No
         pre.add_argument(f"--{name}", action=argparse.BooleanOptionalAction, default=False)
     chosen, _ = pre.parse_known_args(argv)
     name = "quick" if chosen.quick and not chosen.paper else "paper" if chosen.paper else ""
-    hide = hide or {}
+    hide = {**UNUSED_FLAGS[scenario_cfg.checker_kind], **(hide or {})}
     names = {cls: {**FLAGS.get(cls, {}), **hide.get(cls, {})} for cls in FLAGS.keys() | hide}
     exp = scenario_cfg.experiment
     return cli.parse(
         ExperimentConfig, argv, default=preset(scenario_cfg, name or "default"), names=names,
         prog=f"python -m experiments.{exp}", description=f"{exp}: the paper's experiment on "
-        f"{scenario_cfg.env_id} (behaviour agent, checker data, checker, PPO in every reward "
+        f"{scenario_cfg.env_id} ({PHASES[scenario_cfg.checker_kind]}, PPO in every reward "
         "mode, report). --quick and --paper change the defaults shown here.",
     )  # fmt: skip
 

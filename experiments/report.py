@@ -553,6 +553,12 @@ def results_table(results: Mapping) -> str:
             lines.append(f"| {split} |" + " n/a |" * len(CHECKER_METRICS))
             continue
         lines.append(f"| {split} |" + "".join(f" {float(m[k]):.3f} |" for k in CHECKER_METRICS))
+    by = chk.get("auroc_by")
+    if by:  # a memory checker: how well it ranks each constraint type, and counts
+        lines += ["", "| Checker AUROC on test | " + " | ".join(by) + " |",
+                  "|---|" + "---:|" * len(by),
+                  "| memory checker | " + " | ".join("n/a" if v is None else f"{v:.3f}"
+                                                   for v in by.values()) + " |"]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 

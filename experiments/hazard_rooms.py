@@ -1,0 +1,31 @@
+"""HazardRooms: constraints that count, wait for a trigger or keep a distance.
+
+Run ``python -m experiments.hazard_rooms [--quick | --paper] [--out DIR]``.
+
+The agents' episodes draw one of :data:`SENTENCES`, one or two of each constraint type of
+:mod:`jaxgrid.hazard_language` (the learner encodes a fixed table of sentences). The checker
+is the memory checker (:mod:`checker.memory`, phases in :mod:`experiments.memory_phase`), and
+the policy is recurrent (``PPOConfig(recurrent=True)``), so that both can count. Every other
+setting, the outputs and the statistics are those of :mod:`experiments.pipeline`; ``--help``
+lists the flags.
+"""
+
+from experiments.pipeline import main, override, scenario
+
+# One or two sentences of each type; budgets and the trigger concern hazards across the routes.
+SENTENCES = (
+    "avoid lava",
+    "do not step on lava more than twice",
+    "after you pick up the key, do not use the red door",
+    "never stand next to lava",
+    "stay away from water and use the red door at most once",
+)
+
+SCENARIO = override(
+    scenario("hazard_rooms", "HazardRooms-v0"),
+    dict(checker_kind="memory",
+         ppo=dict(env_kwargs=(("sentences", SENTENCES),), recurrent=True)),
+)  # fmt: skip
+
+if __name__ == "__main__":
+    main(SCENARIO)

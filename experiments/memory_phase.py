@@ -1,0 +1,91 @@
+"""Phases a-c for constraints that count: the memory checker (:mod:`checker.memory`).
+
+A window of a few frames cannot tell the third step on lava from the first, so scenarios whose
+sentences have budgets or triggers (``HazardRooms-v0``) train a recurrent checker instead of a
+behaviour agent, windows and a window checker:
+
+* **data**: whole streams of the agents' own env (its sentences, auto-reset) under the random
+  behaviour policy :data:`checker.memory.BEHAVIOUR`, labelled by the ground-truth monitor one
+  step ahead (the step out of each frame violates);
+* **checker**: :func:`checker.memory.train_memory_checker`, saved in ``DIR/checker/``;
+* **report**: on fresh streams of the same env (another key), the metrics of the window
+  checker's report at the agents' ``checker_threshold``, and AUROC per constraint type, on
+  late budget violations and on counting itself (``details.test``), in ``DIR/checker.json``.
+
+Like every phase it is skipped when its artefacts are there and match (the report names the
+parameters' checksum), and redone with a message when they are damaged.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import checker as chk
+from checker import memory
+from checker.metrics import binary_metrics
+from checker.trained import params_sha256
+from experiments.phases import CHECKER_KEYS, _redo
+from jaxgrid.io import read_json, write_json
+
+
+def train_memory_checker(cfg, out: Path):
+    """``(trained, report)``: the memory checker of ``cfg`` (trained, or loaded from ``out``)."""
+    ckpt, report_path = out / "checker", out / "checker.json"
+    if ckpt.exists() or report_path.exists():
+        try:
+            trained, report = chk.load(ckpt), read_json(report_path)
+            if getattr(trained, "kind", "window") != "memory":
+                raise ValueError(f"{ckpt} holds a window checker, not a memory checker")
+            if report.get("params_sha256") != params_sha256(ckpt):
+                raise ValueError(f"{report_path} describes other parameters than {ckpt}")
+            return trained, report
+        except (ValueError, FileNotFoundError) as e:
+            _redo("c. memory checker", e)
+    settings = cfg.memory_checker
+    env = cfg.ppo.make_env()
+    key = jax.random.PRNGKey(cfg.seed)
+    data = memory.collect_streams(env, key, settings.streams, settings.steps)
+    config = memory.MemoryCheckerConfig(view_size=env.view_size)
+    bar = None
+    if cfg.progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=settings.updates, desc="c. memory checker", unit="update", leave=False)
+    params, losses = memory.train_memory_checker(
+        data, config, settings, None if bar is None else lambda i, loss: bar.update(1)
+    )
+    if bar is not None:
+        bar.close()
+    threshold = cfg.ppo.checker_threshold
+    trained = memory.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
+                                          threshold=threshold)  # fmt: skip
+    memory.save(trained, ckpt)
+    test = memory.collect_streams(env, jax.random.fold_in(key, 1), settings.streams,
+                                  settings.steps)  # fmt: skip
+    probs = memory.predict_streams(params, config, test)
+    valid = test["valid"]
+    metrics = {**binary_metrics(test["label"][valid], probs[valid], threshold),
+               **memory.evaluate_streams(probs, test)}  # fmt: skip
+    fill = {"auroc": 0.5}  # undefined rates, as the window checker's report fills them
+    report = {
+        "kind": "memory",
+        "test": {k: fill.get(k, 0.0) if metrics[k] is None else float(metrics[k])
+                 for k in CHECKER_KEYS},
+        "heldout": None,  # the agents' sentences are a fixed list: no held-out templates
+        "transfer": None,
+        "details": {"test": metrics},
+        "training": {"updates": settings.updates, "streams": settings.streams,
+                     "steps": settings.steps, "train_positives": int(data["label"].sum()),
+                     "final_loss": float(np.mean(losses[-50:]))},
+        "params_sha256": params_sha256(ckpt),
+    }  # fmt: skip
+    write_json(ckpt / "report.json", report)  # travels with the checker for --checker reuse
+    write_json(report_path, report)  # last: its presence marks the phase as done
+    types = ", ".join(f"{t} {v['auroc']:.3f}" for t, v in metrics["per_type"].items()
+                      if v["auroc"] is not None)  # fmt: skip
+    print(f"c. memory checker: test AUROC {report['test']['auroc']:.3f} ({types}); counting "
+          f"(costly budget) {metrics['costly_budget']['auroc']}")  # fmt: skip
+    return trained, report

@@ -1,0 +1,125 @@
+"""``python -m experiments.hazard_rooms``: the pipeline with a memory checker and a recurrent
+policy; its command line, bad input before any compile, and the memory-checker phase."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+from helpers.cli_help import help_entries
+from helpers.experiment_runs import quick
+
+from checker import memory as MC
+from experiments import hazard_rooms, memory_phase, phases, pipeline, two_rooms
+from experiments.pipeline import preset
+from jaxgrid import hazard_language as HL
+from jaxgrid.io import write_json
+
+MEMORY_FLAGS = {f"--memory-{n}" for n in ("streams", "steps", "updates", "batch-streams", "lr",
+                                          "positive-weight")}  # fmt: skip
+WINDOW_FLAGS = {"--behaviour-steps", "--checker-samples", "--checker-epochs", "--window",
+                "--lookahead"}  # fmt: skip
+
+
+def _help(capsys, scenario) -> dict:
+    with pytest.raises(SystemExit) as exc:
+        pipeline.parse_args(["--help"], scenario)
+    assert exc.value.code == 0
+    return help_entries(capsys.readouterr().out)
+
+
+def test_each_experiment_shows_the_flags_of_its_checker(capsys):
+    hazard, window = _help(capsys, hazard_rooms.SCENARIO), _help(capsys, two_rooms.SCENARIO)
+    assert MEMORY_FLAGS <= set(hazard) and not WINDOW_FLAGS & set(hazard)
+    assert WINDOW_FLAGS <= set(window) and not MEMORY_FLAGS & set(window)
+    assert "(default: 600)" in hazard["--memory-updates"]
+
+
+def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_and_memory():
+    cfg = preset(hazard_rooms.SCENARIO)
+    assert cfg.checker_kind == "memory" and cfg.ppo.recurrent
+    assert dict(cfg.ppo.env_kwargs) == {"sentences": hazard_rooms.SENTENCES}
+    # Every other PPO setting is the paper scenarios' one.
+    base = preset(two_rooms.SCENARIO).ppo
+    same = dataclasses.replace(cfg.ppo, env_id=base.env_id, env_kwargs=(), recurrent=False)
+    assert same == base
+    assert cfg.memory_checker.seed == cfg.ppo.seed
+    with pytest.raises(ValueError, match="ExperimentConfig.checker_kind must be one of"):
+        dataclasses.replace(cfg, checker_kind="lstm")
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--memory-updates", "0"], "--memory-updates must be an int >= 1, got 0"),
+        (["--memory-streams", "4"], "--memory-batch-streams (8) exceeds --memory-streams (4)"),
+        (["--memory-lr", "0"], "--memory-lr must be > 0"),
+    ],
+)
+def test_bad_memory_flags_are_usage_errors_before_any_compile(
+    argv, message, tmp_path, capsys, compiles
+):
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        quick(hazard_rooms, out, *argv)
+    assert exc.value.code == 2
+    err = " ".join(capsys.readouterr().err.replace("│", " ").split())
+    assert message in err, err
+    assert not out.exists() and not compiles
+
+
+def _saved_memory_checker(directory):
+    small = MC.MemoryCheckerConfig(word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4,
+                                   state_dim=8, memory_dim=16, mlp_dim=16)  # fmt: skip
+    trained = MC.new_memory_checker(small, jax.random.PRNGKey(0), env_id="HazardRooms-v0")
+    MC.save(trained, directory)
+    return trained
+
+
+def test_a_checker_of_the_other_kind_is_refused_by_name(tmp_path):
+    _saved_memory_checker(tmp_path / "memory")
+    cfg = preset(two_rooms.SCENARIO, "quick")
+    cfg = dataclasses.replace(cfg, checker=str(tmp_path / "memory"), out=str(tmp_path / "o"))
+    with pytest.raises(ValueError, match="a memory checker, and two_rooms trains its agents "
+                                         "with a window checker"):  # fmt: skip
+        phases.reuse_checker(cfg)
+
+
+def _fake_streams(env, key, n, t):
+    """Streams shaped as :func:`checker.memory.collect_streams`'s, without compiling the env."""
+    rng = np.random.default_rng(int(jax.random.randint(key, (), 0, 2**31 - 1)))
+    starts = np.zeros((n, t), bool)
+    starts[:, ::8] = True
+    tokens = np.zeros((n, t, HL.MAX_LEN), np.int32)
+    tokens[..., :2] = 1 + rng.integers(0, 5, (n, t, 1))
+    return {
+        "frames": rng.integers(0, 6, (n, t, 7, 7, 3)).astype(np.uint8),
+        "tokens": tokens, "starts": starts,
+        "label": (rng.random((n, t)) < 0.2).astype(np.int32),
+        "next_cost": (rng.random((n, t)) < 0.3).astype(np.float32),
+        "cost": np.zeros((n, t), np.float32), "violation": np.zeros((n, t), np.int32),
+        "ctype": rng.integers(0, len(HL.CONSTRAINT_TYPES), (n, t)).astype(np.int32),
+        "template": np.zeros((n, t), np.int32), "valid": np.ones((n, t), bool),
+    }  # fmt: skip
+
+
+def test_the_memory_phase_is_skipped_when_done_and_redone_when_damaged(
+    tmp_path, capsys, monkeypatch
+):
+    """A matching checker and report are loaded, not retrained; a report of other parameters
+    makes the phase run again (here on a tiny budget of made-up streams), with a message."""
+    monkeypatch.setattr(MC, "collect_streams", _fake_streams)
+    cfg = dataclasses.replace(
+        preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
+        memory_checker=MC.MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
+    )  # fmt: skip
+    first, report = memory_phase.train_memory_checker(cfg, tmp_path)
+    assert report["kind"] == "memory" and set(report["test"]) == set(phases.CHECKER_KEYS)
+    assert {"per_type", "late_budget", "costly_budget"} <= set(report["details"]["test"])
+    again, same = memory_phase.train_memory_checker(cfg, tmp_path)
+    assert same == report and "redoing" not in capsys.readouterr().err
+    write_json(tmp_path / "checker.json", {**report, "params_sha256": "0" * 64})
+    memory_phase.train_memory_checker(cfg, tmp_path)
+    assert "c. memory checker: redoing this phase" in capsys.readouterr().err
