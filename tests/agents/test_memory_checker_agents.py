@@ -94,6 +94,7 @@ def test_the_rollout_scores_each_step_as_the_whole_stream_would(memory_checker):
     assert np.ptp(prob) > 1e-3
 
 
+@pytest.mark.slow  # 25-50 s of compiles; the stream interface it uses is the window shield's
 def test_the_shield_trains_and_evaluates_with_the_memory_checker(memory_checker):
     """Shield mode with a recurrent policy: candidates are scored from the carried GRU state
     in training, and from the shield's own memory of each episode in evaluation."""
