@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 from helpers.cli_help import help_entries
-from helpers.experiment_runs import quick
+from helpers.experiment_runs import refused_before_any_compile
 
 from checker import memory as MC
 from experiments import hazard_rooms, memory_phase, phases, pipeline, two_rooms
@@ -61,13 +61,7 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_and_memory
 def test_bad_memory_flags_are_usage_errors_before_any_compile(
     argv, message, tmp_path, capsys, compiles
 ):
-    out = tmp_path / "run"
-    with pytest.raises(SystemExit) as exc:
-        quick(hazard_rooms, out, *argv)
-    assert exc.value.code == 2
-    err = " ".join(capsys.readouterr().err.replace("│", " ").split())
-    assert message in err, err
-    assert not out.exists() and not compiles
+    refused_before_any_compile(hazard_rooms, tmp_path / "run", argv, message, capsys, compiles)
 
 
 def _saved_memory_checker(directory):

@@ -11,7 +11,7 @@ import os
 
 import pytest
 from helpers.cli_help import help_entries, squeezed
-from helpers.experiment_runs import check_outputs, quick
+from helpers.experiment_runs import check_outputs, quick, refused_before_any_compile
 
 from agents.config import REWARD_MODES, PPOConfig
 from checker.train import CheckerTrainConfig
@@ -197,13 +197,7 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
 def test_bad_flags_are_usage_errors_naming_the_flag_before_any_compile(
     argv, message, tmp_path, capsys, compiles
 ):
-    out = tmp_path / "run"
-    with pytest.raises(SystemExit) as exc:
-        quick(two_rooms, out, *argv)
-    assert exc.value.code == 2
-    err = " ".join(capsys.readouterr().err.replace("│", " ").split())
-    assert message in err, err
-    assert not out.exists() and not compiles
+    refused_before_any_compile(two_rooms, tmp_path / "run", argv, message, capsys, compiles)
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root can write anywhere")

@@ -36,3 +36,16 @@ def check_outputs(out, experiment: str, modes=REWARD_MODES, seeds=2, final_episo
     assert (out / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "episodes.gif").read_bytes()[:6] in (b"GIF87a", b"GIF89a")
     return results
+
+
+def refused_before_any_compile(module, out, argv, message, capsys, compiles) -> None:
+    """``--quick`` with ``argv`` exits with status 2 and ``message`` on stderr, before any
+    compile and without creating ``out``."""
+    import pytest
+
+    with pytest.raises(SystemExit) as exc:
+        quick(module, out, *argv)
+    assert exc.value.code == 2
+    err = " ".join(capsys.readouterr().err.replace("│", " ").split())
+    assert message in err, err
+    assert not out.exists() and not compiles
