@@ -90,7 +90,7 @@ class ExperimentConfig:
     final_episodes: int = 500  # final evaluation episodes per agent
     gif_episodes: int = 4  # episodes recorded in episodes.gif (0: none)
     quick: bool = False  # the smoke-test preset: every output in minutes, results mean nothing
-    paper: bool = False  # the paper's preset: 1e7 steps, 5 seeds
+    paper: bool = False  # the paper's preset: 1e7 steps, 10 seeds
     progress: bool = True  # show progress bars
     # time the PureJaxRL-style baseline learner (benchmarks.purejaxrl_ppo) for ~30 s at the
     # end, and print its steps/s beside the run time: run times differ between machines
