@@ -27,7 +27,7 @@ import checker as chk
 from checker import memory
 from checker.metrics import binary_metrics
 from checker.trained import params_sha256
-from experiments.phases import CHECKER_KEYS, _redo
+from experiments.phases import _rates, _redo
 from jaxgrid.io import read_json, write_json
 
 
@@ -69,11 +69,9 @@ def train_memory_checker(cfg, out: Path):
     valid = test["valid"]
     metrics = {**binary_metrics(test["label"][valid], probs[valid], threshold),
                **memory.evaluate_streams(probs, test)}  # fmt: skip
-    fill = {"auroc": 0.5}  # undefined rates, as the window checker's report fills them
     report = {
         "kind": "memory",
-        "test": {k: fill.get(k, 0.0) if metrics[k] is None else float(metrics[k])
-                 for k in CHECKER_KEYS},
+        "test": _rates(metrics),  # undefined rates filled as the window checker's report does
         "heldout": None,  # the agents' sentences are a fixed list: no held-out templates
         "transfer": None,
         "details": {"test": metrics},
