@@ -367,6 +367,16 @@ def train_memory_checker(
     return params, np.asarray(losses)
 
 
+def fit(data: dict, config: MemoryCheckerConfig, train: MemoryTrainConfig, desc=None):
+    """:func:`train_memory_checker` with a progress bar named ``desc`` (None: no bar)."""
+    if desc is None:
+        return train_memory_checker(data, config, train)
+    from tqdm.auto import tqdm
+
+    with tqdm(total=train.updates, desc=desc, unit="update", leave=False) as bar:
+        return train_memory_checker(data, config, train, lambda i, loss: bar.update(1))
+
+
 def predict_streams(params, config: MemoryCheckerConfig, data: dict, batch: int = 64):
     """Violation probabilities ``(N, T)`` of every frame of ``data``."""
     model = MemoryChecker(config)
@@ -449,16 +459,7 @@ def run(
     data = collect_streams(
         jaxgrid.make(env_id), jax.random.PRNGKey(train.seed), num_envs, num_steps
     )
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=train.updates, desc="train memory checker", unit="update", leave=False)
-    params, losses = train_memory_checker(
-        data, config, train, None if bar is None else lambda i, loss: bar.update(1)
-    )
-    if bar is not None:
-        bar.close()
+    params, losses = fit(data, config, train, "train memory checker" if progress else None)
     if out is not None:
         save(TrainedMemoryChecker(params=params, config=config, env_id=env_id), out)
     report = {

@@ -40,6 +40,7 @@ class TrainedChecker(struct.PyTreeNode):
     lookahead: int = struct.field(pytree_node=False, default=1)
     env_id: str = struct.field(pytree_node=False, default="")
     threshold: float = struct.field(pytree_node=False, default=0.5)
+    kind = "window"  # what it remembers: the last frames (checker.memory's: "memory")
 
     @property
     def module(self) -> Checker:

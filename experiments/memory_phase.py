@@ -37,7 +37,7 @@ def train_memory_checker(cfg, out: Path):
     if ckpt.exists() or report_path.exists():
         try:
             trained, report = chk.load(ckpt), read_json(report_path)
-            if getattr(trained, "kind", "window") != "memory":
+            if trained.kind != "memory":
                 raise ValueError(f"{ckpt} holds a window checker, not a memory checker")
             if report.get("params_sha256") != params_sha256(ckpt):
                 raise ValueError(f"{report_path} describes other parameters than {ckpt}")
@@ -49,16 +49,8 @@ def train_memory_checker(cfg, out: Path):
     key = jax.random.PRNGKey(cfg.seed)
     data = memory.collect_streams(env, key, settings.streams, settings.steps)
     config = memory.MemoryCheckerConfig(view_size=env.view_size)
-    bar = None
-    if cfg.progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=settings.updates, desc="c. memory checker", unit="update", leave=False)
-    params, losses = memory.train_memory_checker(
-        data, config, settings, None if bar is None else lambda i, loss: bar.update(1)
-    )
-    if bar is not None:
-        bar.close()
+    params, losses = memory.fit(data, config, settings, "c. memory checker" if cfg.progress
+                                else None)  # fmt: skip
     threshold = cfg.ppo.checker_threshold
     trained = memory.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
                                           threshold=threshold)  # fmt: skip

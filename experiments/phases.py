@@ -248,7 +248,7 @@ def reuse_checker(cfg):
     report of other parameters is refused."""
     path = Path(cfg.checker)
     trained = chk.load(path)
-    kind = getattr(trained, "kind", "window")
+    kind = trained.kind
     if kind != cfg.checker_kind:
         raise ValueError(f"--checker {path}: a {kind} checker, and {cfg.experiment} trains its "
                          f"agents with a {cfg.checker_kind} checker")  # fmt: skip
