@@ -506,17 +506,18 @@ def main(argv=None) -> dict:
     parser.add_argument("--json", default=None, help="write the report here")
     parser.add_argument("--out", default=None, help="save the trained checker in this directory")
     args = parser.parse_args(argv)
-    for flag in ("envs", "steps", "updates", "batch_streams", "late"):
-        if getattr(args, flag) < 1:
-            parser.error(
-                f"--{flag.replace('_', '-')} must be at least 1, got {getattr(args, flag)}"
-            )
-    if args.batch_streams > args.envs:
-        parser.error(f"--batch-streams ({args.batch_streams}) exceeds --envs ({args.envs})")
-    train = MemoryTrainConfig(
-        streams=args.envs, steps=args.steps, updates=args.updates,
-        batch_streams=args.batch_streams, seed=args.seed,
-    )  # fmt: skip
+    if args.late < 1:
+        parser.error(f"--late must be at least 1, got {args.late}")
+    flags = {"streams": "--envs", "steps": "--steps", "updates": "--updates",
+             "batch_streams": "--batch-streams", "seed": "--seed"}  # fmt: skip
+    try:  # the config checks the values; its messages are given in the flags' names
+        train = MemoryTrainConfig(**{field: getattr(args, flag[2:].replace("-", "_"))
+                                     for field, flag in flags.items()})  # fmt: skip
+    except ValueError as e:
+        message = str(e)
+        for field, flag in flags.items():
+            message = message.replace(f"MemoryTrainConfig.{field}", flag)
+        parser.error(message)
     report = run(
         config=MemoryCheckerConfig(memory=not args.no_memory),
         train=train,

@@ -135,8 +135,10 @@ def test_too_many_streams_per_batch_is_refused(streams):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--envs", "0"], "--envs must be at least 1"),
-        (["--batch-streams", "0"], "--batch-streams must be at least 1"),
+        (["--envs", "0"], "--envs must be an int >= 1, got 0"),
+        (["--updates", "0"], "--updates must be an int >= 1, got 0"),
+        (["--batch-streams", "0"], "--batch-streams must be an int >= 1, got 0"),
+        (["--late", "0"], "--late must be at least 1, got 0"),
         (["--envs", "8", "--batch-streams", "16"], "--batch-streams (16) exceeds --envs (8)"),
     ],
 )
