@@ -37,13 +37,15 @@ def test_each_experiment_shows_the_flags_of_its_checker(capsys):
     assert "(default: 600)" in hazard["--memory-updates"]
 
 
-def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_and_memory():
+def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and_novelty():
     cfg = preset(hazard_rooms.SCENARIO)
     assert cfg.checker_kind == "memory" and cfg.ppo.recurrent
     assert dict(cfg.ppo.env_kwargs) == {"sentences": hazard_rooms.SENTENCES}
-    # Every other PPO setting is the paper scenarios' one.
     base = preset(two_rooms.SCENARIO).ppo
-    same = dataclasses.replace(cfg.ppo, env_id=base.env_id, env_kwargs=(), recurrent=False)
+    assert cfg.ppo.novelty_bonus == 0.05 > base.novelty_bonus
+    # Every other PPO setting is the paper scenarios' one.
+    same = dataclasses.replace(cfg.ppo, env_id=base.env_id, env_kwargs=(), recurrent=False,
+                               novelty_bonus=base.novelty_bonus)  # fmt: skip
     assert same == base
     assert cfg.memory_checker.seed == cfg.ppo.seed
     with pytest.raises(ValueError, match="ExperimentConfig.checker_kind must be one of"):
