@@ -508,16 +508,15 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     if args.late < 1:
         parser.error(f"--late must be at least 1, got {args.late}")
-    flags = {"streams": "--envs", "steps": "--steps", "updates": "--updates",
-             "batch_streams": "--batch-streams", "seed": "--seed"}  # fmt: skip
+    dests = {"streams": "envs", "steps": "steps", "updates": "updates",
+             "batch_streams": "batch_streams", "seed": "seed"}  # fmt: skip
     try:  # the config checks the values; its messages are given in the flags' names
-        train = MemoryTrainConfig(**{field: getattr(args, flag[2:].replace("-", "_"))
-                                     for field, flag in flags.items()})  # fmt: skip
+        train = MemoryTrainConfig(**{field: getattr(args, d) for field, d in dests.items()})
     except ValueError as e:
-        message = str(e)
-        for field, flag in flags.items():
-            message = message.replace(f"MemoryTrainConfig.{field}", flag)
-        parser.error(message)
+        from checker.cli import flag_names
+
+        flags = {f"MemoryTrainConfig.{f}": "--" + d.replace("_", "-") for f, d in dests.items()}
+        parser.error(flag_names(str(e), flags))
     report = run(
         config=MemoryCheckerConfig(memory=not args.no_memory),
         train=train,
