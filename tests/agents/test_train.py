@@ -109,6 +109,20 @@ def test_sentence_encoders_skip_the_pad_tail():
     np.testing.assert_array_equal(fast_jit(learner.lang_table)(params), full)
 
 
+def test_training_does_not_depend_on_the_evaluation_schedule():
+    """Evaluation plays on its own fixed key: the same run evaluated after every update or
+    once at the end trains bit-identical agents (``eval_every`` only sets the curves)."""
+    runners = []
+    for every in (1, 4):
+        config = dataclasses.replace(TINY, eval_every=every)
+        assert config.num_updates == TINY.num_updates == 4
+        out = fast_jit(make_train(config))(jax.random.PRNGKey(3))
+        assert out["eval"]["success_rate"].shape == (4 // every,)
+        runners.append(jax.device_get(out["runner"]))
+    for a, b in zip(leaves(runners[0]), leaves(runners[1]), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 # 183 updates' worth of steps and eval_every 10: the run is 18 chunks, 180 updates.
 ANNEALED = PPOConfig(
     num_envs=8, num_steps=8, total_timesteps=183 * 64 + 17, update_epochs=2, num_minibatches=2,
