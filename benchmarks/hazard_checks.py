@@ -68,9 +68,15 @@ def oracle_figures(env, episodes: int, batch: int = 2_000, seed: int = 0) -> dic
     return out
 
 
-def throughput(env_id: str, num_envs: int = 256, steps: int = 64) -> dict:
-    """Env steps/s of random actions with auto-reset, and the compile time."""
+def throughput(env_id: str, num_envs: int = 256, steps: int = 64, resets: int = 16) -> dict:
+    """Env steps/s of random actions with auto-reset, the compile time, and the cost of one
+    reset in a vmapped batch of ``resets`` (the learner resets the envs whose episodes just
+    ended in batches of 16; random actions end few episodes, so the step figure hides it)."""
     env = BatchedAutoReset(make(env_id))
+    reset_keys = jax.random.split(jax.random.key(2), resets)
+    reset = measure(
+        lambda k: jax.vmap(env.env.reset)(k)[1].observation["image"], reset_keys, repeats=5
+    )
 
     def rollout(states, key):
         def body(states, k):
@@ -83,7 +89,11 @@ def throughput(env_id: str, num_envs: int = 256, steps: int = 64) -> dict:
 
     states, _ = env.reset(jax.random.split(jax.random.key(0), num_envs))
     t = measure(rollout, states, jax.random.key(1))
-    return {"steps_per_s": num_envs * steps / t.best_s, "compile_s": t.compile_s}
+    return {
+        "steps_per_s": num_envs * steps / t.best_s,
+        "compile_s": t.compile_s,
+        "reset_us": 1e6 * reset.best_s / resets,
+    }
 
 
 def main(argv=None) -> dict:
@@ -105,7 +115,8 @@ def main(argv=None) -> dict:
             f" {f['unconstrained_violated_pct']:>10.1f}"
         )
     for env_id, f in figures["throughput"].items():
-        print(f"{env_id}: {f['steps_per_s']:,.0f} steps/s (compile {f['compile_s']:.1f} s)")
+        print(f"{env_id}: {f['steps_per_s']:,.0f} steps/s (compile {f['compile_s']:.1f} s), "
+              f"{f['reset_us']:,.0f} us per reset")  # fmt: skip
     if args.json:
         write_json(args.json, figures)
     return figures

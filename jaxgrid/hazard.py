@@ -288,9 +288,11 @@ class HazardRooms(Environment):
         grid = G.put(grid, goal, GOAL_CELL)
         grid = G.put(grid, key, G.cell(KEY, G.randint(u[12], 0, 6), 0))
         named = jnp.array([-1, 0], jnp.int32) if named is None else named
-        for i, (kind, colour) in enumerate(STRIPS):
-            v = u[13 + 4 * i : 17 + 4 * i]
-            use_named = (named[0] >= 0) & (u[15 + 4 * len(STRIPS) + i] < NAMED_SHARE)
+        n = len(STRIPS)
+
+        def paint(grid, strip):
+            kind, colour, v, named_u = strip
+            use_named = (named[0] >= 0) & (named_u < NAMED_SHARE)
             kind = jnp.where(use_named, named[0], kind)
             colour = jnp.where(use_named, named[1], colour)
             r = G.randint(v[0], 0, 4)
@@ -307,7 +309,14 @@ class HazardRooms(Environment):
                 (dx == 0) & (dy >= 0) & (dy < _STRIP_LEN),
             )
             cell = jnp.where(kind == LAVA, jnp.asarray(LAVA_CELL), G.cell(FLOOR, colour, 0))
-            grid = jnp.where((strip & ~protect)[..., None], cell, grid)
+            return jnp.where((strip & ~protect)[..., None], cell, grid), None
+
+        # A loop, not ten unrolled selects: its output is a buffer. Unrolled, XLA fuses the
+        # whole chain into every consumer, and the monitor's dilations and the BFS read each
+        # cell at several shifts, so each read recomputed the layout (reset 100x slower).
+        kinds, colours = (jnp.asarray(c, jnp.int32) for c in zip(*STRIPS, strict=True))
+        strips = (kinds, colours, u[13 : 13 + 4 * n].reshape(n, 4), u[15 + 4 * n : 15 + 5 * n])
+        grid, _ = jax.lax.scan(paint, grid, strips)
         direction = G.randint(u[14 + 4 * len(STRIPS)], 0, 4)
         return grid, agent, direction, goal
 
