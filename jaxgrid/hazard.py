@@ -313,11 +313,12 @@ class HazardRooms(Environment):
 
         # A loop, not ten unrolled selects: its output is a buffer. Unrolled, XLA fuses the
         # whole chain into every consumer, and the monitor's dilations and the BFS read each
-        # cell at several shifts, so each read recomputed the layout (reset 100x slower).
+        # cell at several shifts, so each read recomputed the layout (a reset 7-26x slower,
+        # docs/decisions.md); the loop gives the same bits.
         kinds, colours = (jnp.asarray(c, jnp.int32) for c in zip(*STRIPS, strict=True))
         strips = (kinds, colours, u[13 : 13 + 4 * n].reshape(n, 4), u[15 + 4 * n : 15 + 5 * n])
         grid, _ = jax.lax.scan(paint, grid, strips)
-        direction = G.randint(u[14 + 4 * len(STRIPS)], 0, 4)
+        direction = G.randint(u[14 + 4 * n], 0, 4)
         return grid, agent, direction, goal
 
     NUM_UNIFORMS = 15 + 5 * len(STRIPS)
