@@ -27,6 +27,7 @@ import functools
 import itertools
 import json
 import os
+import threading
 import time
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
@@ -241,7 +242,7 @@ def run(
     hparams = {n: jnp.asarray(v, jnp.float32) for n, v in swept.items()}
     abstract = jax.eval_shape(jax.vmap(learner.init), keys, hparams)
     shardings = programs.shardings
-    init, chunk = programs.init, programs.chunk
+    init, chunk = programs.executable("init", len(seeds)), programs.executable("chunk", len(seeds))
 
     manager = bar = None
     done_chunks, records, totals = 0, [], np.zeros(len(seeds), np.int64)
@@ -323,7 +324,8 @@ def run(
     result["runner"] = runner
     result["complete"] = stop == config.num_chunks
     if final_episodes:
-        result["final"] = _host(programs.final(final_episodes)(runner.params, runner.hparams))
+        final = programs.executable("final", len(seeds), final_episodes)
+        result["final"] = _host(final(runner.params, runner.hparams))
         result["final_episodes"] = final_episodes
     result["wall_s"] = time.perf_counter() - start
     return result
@@ -334,6 +336,7 @@ class _Programs:
 
     Cached per process (a few entries), so that calling :func:`run` again with the same
     configuration, e.g. to resume, to add seeds or from a sweep, does not compile again.
+    :meth:`warm` compiles them ahead of time for a number of agents (:func:`precompile`).
     """
 
     def __init__(self, config: PPOConfig, checker, multi_host: bool, swept: tuple = ()):
@@ -354,12 +357,15 @@ class _Programs:
             return runner, metrics, finite
 
         self.checker = checker  # keeps id(checker) of the cache key alive
+        self.swept = swept
         self.learner, self.mesh, self.shardings = learner, mesh, shardings
         self.init = jax.jit(jax.vmap(learner.init), out_shardings=shardings)
         self.chunk = jax.jit(
             chunk_fn, in_shardings=(shardings,), out_shardings=(shardings, None, None)
         )
         self._final: dict[int, Any] = {}
+        self._ready: dict[tuple, Any] = {}  # (name, agents, ...) -> compiled executable
+        self._warming = threading.Lock()  # held while warm() compiles
 
     def final(self, num_episodes: int):
         if num_episodes not in self._final:
@@ -375,22 +381,68 @@ class _Programs:
             self._final[num_episodes] = jax.jit(jax.vmap(final))
         return self._final[num_episodes]
 
+    def warm(self, agents: int, final_episodes: int = 0) -> None:
+        """Compile ``init``, ``chunk`` and (if ``final_episodes``) ``final`` for ``agents``."""
+        with self._warming:
+            if ("chunk", agents) in self._ready:
+                return
+            key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
+            keys = jax.ShapeDtypeStruct((agents, *key.shape), key.dtype)
+            hparams = {n: jax.ShapeDtypeStruct((agents,), jnp.float32) for n in self.swept}
+            abstract = jax.eval_shape(jax.vmap(self.learner.init), keys, hparams)
+            ready = {("init", agents): self.init.lower(keys, hparams).compile(),
+                     ("chunk", agents): self.chunk.lower(abstract).compile()}  # fmt: skip
+            if final_episodes:
+                final = self.final(final_episodes).lower(abstract.params, abstract.hparams)
+                ready["final", agents, final_episodes] = final.compile()
+            self._ready.update(ready)
+
+    def executable(self, name: str, agents: int, *args):
+        """The compiled ``name`` program for ``agents`` if :meth:`warm` made it (waiting for
+        a warm in progress), else the jitted function, which compiles on its first call."""
+        with self._warming:
+            ready = self._ready.get((name, agents, *args))
+        if ready is not None:
+            return ready
+        return self.final(*args) if name == "final" else getattr(self, name)
+
 
 _PROGRAMS: OrderedDict = OrderedDict()
-_MAX_PROGRAMS = 4
+_MAX_PROGRAMS = 8  # an experiment's behaviour agent and its six reward modes
+_PROGRAMS_LOCK = threading.Lock()  # precompile() may run in another thread
 
 
 def _programs(config: PPOConfig, checker, multi_host: bool, swept: tuple = ()) -> _Programs:
     devices = jax.devices() if multi_host else jax.local_devices()
     key = (config, None if checker is None else id(checker), tuple(d.id for d in devices), swept)
-    if key in _PROGRAMS:
-        _PROGRAMS.move_to_end(key)  # config and checker were validated when it was built
-        return _PROGRAMS[key]
-    programs = _Programs(config, checker, multi_host, swept)
-    _PROGRAMS[key] = programs
-    while len(_PROGRAMS) > _MAX_PROGRAMS:
-        _PROGRAMS.popitem(last=False)
-    return programs
+    with _PROGRAMS_LOCK:
+        if key in _PROGRAMS:
+            _PROGRAMS.move_to_end(key)  # config and checker were validated when it was built
+            return _PROGRAMS[key]
+        programs = _Programs(config, checker, multi_host, swept)
+        _PROGRAMS[key] = programs
+        while len(_PROGRAMS) > _MAX_PROGRAMS:
+            _PROGRAMS.popitem(last=False)
+        return programs
+
+
+def precompile(
+    config: PPOConfig,
+    checker=None,
+    *,
+    seeds: Sequence[int] = (0,),
+    final_episodes: int = 0,
+    multi_host: bool = False,
+    sweep: Mapping[str, Sequence[float]] | None = None,
+) -> None:
+    """Compile the programs of :func:`run` with these arguments, so that ``run`` spends no
+    time compiling. Thread-safe: XLA's compiler releases the GIL, so a thread can compile one
+    run's programs while another run trains (``experiments.pipeline`` does); a ``run`` that
+    needs programs still compiling here waits for them. Same results as without it.
+    """
+    sweep = check_sweep(sweep, config)
+    agents = len(seeds) * int(np.prod([len(v) for v in sweep.values()]))
+    _programs(config, checker, multi_host, tuple(sweep)).warm(agents, final_episodes)
 
 
 def _kept(manager, out: Path | None) -> str:

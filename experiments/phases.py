@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -22,7 +23,7 @@ import checker as chk
 import jaxgrid
 from agents.config import PPOConfig
 from agents.networks import start_memory
-from agents.runner import ResumeError
+from agents.runner import ResumeError, precompile
 from agents.runner import run as run_ppo
 from agents.train import make_learner
 from checker.trained import params_sha256
@@ -286,16 +287,56 @@ def reuse_checker(cfg):
 # ----------------------------------------------------------------------------------------
 # d, e. PPO in every mode
 # ----------------------------------------------------------------------------------------
-def train_agents(cfg, out: Path, mode: str, trained) -> dict:
-    """``cfg.seeds`` agents of one reward mode, vmapped, checkpointed, finally evaluated."""
+def _agents(cfg, mode: str, trained) -> tuple[PPOConfig, object, dict]:
+    """The config, checker and common arguments of one mode's :func:`agents.runner.run`."""
     config = ppo_config(cfg, mode)
-    seeds = tuple(range(cfg.seed, cfg.seed + cfg.seeds))
     checker = trained if config.uses_checker else None
-    result = _run_ppo(config, checker, seeds=seeds, out_dir=out / "modes" / mode,
-                      final_episodes=cfg.final_episodes, progress=cfg.progress,
-                      phase=f"d. {mode}", sweep=cfg.sweep_values or None)  # fmt: skip
+    return config, checker, dict(seeds=tuple(range(cfg.seed, cfg.seed + cfg.seeds)),
+                                 final_episodes=cfg.final_episodes,
+                                 sweep=cfg.sweep_values or None)  # fmt: skip
+
+
+def train_agents(cfg, out: Path, mode: str, trained, compiler: Compiler | None = None) -> dict:
+    """``cfg.seeds`` agents of one reward mode, vmapped, checkpointed, finally evaluated."""
+    if compiler is not None:
+        compiler.wait(mode)
+    config, checker, common = _agents(cfg, mode, trained)
+    result = _run_ppo(config, checker, out_dir=out / "modes" / mode, progress=cfg.progress,
+                      phase=f"d. {mode}", **common)  # fmt: skip
     result["config"] = config
     return result
+
+
+class Compiler:
+    """Compiles the agents' programs in one background thread while the main thread works.
+
+    XLA's compiler releases the GIL, so the modes' programs compile on the second core while
+    the first trains the behaviour agent, the checker or another mode: ``--quick`` is mostly
+    compile time. :meth:`submit` queues the modes without a checker (before it is trained)
+    or those with one; :meth:`wait` before a mode trains: it waits for that mode's programs,
+    or takes the job back if the thread has not started it (the run then compiles them).
+    """
+
+    def __init__(self, cfg):
+        self.cfg, self.jobs = cfg, {}
+        self.order: list[str] = []  # the modes in the order they were queued
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix="compile")
+
+    def submit(self, trained=None) -> None:
+        """Queue the modes that need no checker (``trained`` None) or those that need it."""
+        for mode in self.cfg.modes:
+            config, checker, common = _agents(self.cfg, mode, trained)
+            if mode not in self.jobs and config.uses_checker == (trained is not None):
+                self.jobs[mode] = self.pool.submit(precompile, config, checker, **common)
+                self.order.append(mode)
+
+    def wait(self, mode: str) -> None:
+        job = self.jobs.pop(mode, None)
+        if job is not None and not job.cancel():
+            job.result()
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 def write_gif(cfg, out: Path, runs: dict, trained) -> Path | None:

@@ -255,15 +255,23 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     out = phases.prepare_out(cfg)  # fails here, before any training, if not writable
     start = time.perf_counter()
     keep = {} if keep is None else keep
-    if cfg.checker is not None:
-        trained, checker_report = phases.reuse_checker(cfg)
-    elif cfg.checker_kind == "memory":  # a-c: streams, the recurrent checker, its report
-        trained, checker_report = memory_phase.train_memory_checker(cfg, out)
-    else:
-        behaviour = keep["behaviour"] = phases.behaviour_agent(cfg, out)  # a
-        data = keep["data"] = phases.checker_data(cfg, out, behaviour)  # b
-        trained, checker_report = phases.train_checker(cfg, out, data, behaviour)  # c
-    runs = {mode: phases.train_agents(cfg, out, mode, trained) for mode in cfg.modes}  # d, e
+    compiler = phases.Compiler(cfg)  # the modes' programs compile in a thread meanwhile
+    try:
+        compiler.submit()  # the modes without a checker, while the checker is made
+        if cfg.checker is not None:
+            trained, checker_report = phases.reuse_checker(cfg)
+        elif cfg.checker_kind == "memory":  # a-c: streams, the recurrent checker, its report
+            trained, checker_report = memory_phase.train_memory_checker(cfg, out)
+        else:
+            behaviour = keep["behaviour"] = phases.behaviour_agent(cfg, out)  # a
+            data = keep["data"] = phases.checker_data(cfg, out, behaviour)  # b
+            trained, checker_report = phases.train_checker(cfg, out, data, behaviour)  # c
+        compiler.submit(trained)
+        # d, e: in the order their programs compile, then reported in cfg.modes' order
+        runs = {m: phases.train_agents(cfg, out, m, trained, compiler) for m in compiler.order}
+        runs = {m: runs[m] for m in cfg.modes}
+    finally:
+        compiler.close()
     keep.update(trained=trained, report=checker_report, runs=runs)
     if cfg.sweep_values:  # one results directory per swept value, and a summary
         return phases.write_sweep(cfg, out, runs, checker_report, time.perf_counter() - start)

@@ -15,6 +15,7 @@ import json
 import subprocess
 import sys
 import textwrap
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +29,9 @@ from helpers.agents_cases import (
 )
 from helpers.host_devices import ROOT, device_env
 
+from agents import runner
 from agents.config import PPOConfig
-from agents.runner import NonFiniteError, run
+from agents.runner import NonFiniteError, precompile, run
 
 # ------------------------------------------------------------------ multi-device process
 # Slow: a fresh process with 4 host devices compiles the sharded programs. When the test is
@@ -127,6 +129,31 @@ def test_runner_compiles_once(runs):
     assert again["records"] == whole["records"]
     assert first["records"] == whole["records"][: len(SEEDS)]
     assert again["wall_s"] < first["wall_s"]
+
+
+def test_precompiled_programs_are_used_and_change_nothing(monkeypatch):
+    """Programs compiled ahead of time in another thread (as the experiments do while other
+    work runs) are the ones ``run`` uses, final evaluation included, with the same result as
+    programs compiled by ``run`` itself."""
+    config = dataclasses.replace(TINY, lr=TINY.lr * 0.9)  # programs of its own
+    thread = threading.Thread(
+        target=precompile, args=(config,), kwargs=dict(seeds=SEEDS, final_episodes=4)
+    )
+    thread.start()
+    thread.join()
+    with count_compiles() as compiled:
+        ahead = run(config, seeds=SEEDS, progress=False, final_episodes=4)
+    assert not [n for n in compiled if "init" in n or "chunk" in n or "final" in n], compiled
+    monkeypatch.setattr(runner, "_PROGRAMS", type(runner._PROGRAMS)())  # compile afresh
+    with count_compiles() as compiled:
+        fresh = run(config, seeds=SEEDS, progress=False, final_episodes=4)
+    for name in ("init", "chunk", "final"):  # the counter sees them
+        assert [n for n in compiled if name in n], compiled
+    assert ahead["records"] == fresh["records"]
+    for a, b in zip(leaves(ahead["params"]), leaves(fresh["params"]), strict=True):
+        np.testing.assert_array_equal(a, b)
+    for k in fresh["final"]:
+        np.testing.assert_array_equal(ahead["final"][k], fresh["final"][k])
 
 
 def test_run_result(uninterrupted):
