@@ -27,7 +27,7 @@ from agents.runner import ResumeError, precompile
 from agents.runner import run as run_ppo
 from agents.train import make_learner
 from checker.trained import params_sha256
-from experiments import stats
+from experiments import provenance, stats
 from jaxgrid.io import read_json, to_jsonable, write_json, write_jsonl
 
 # Checker metrics copied into results.json (all rates).
@@ -95,6 +95,7 @@ def prepare_out(cfg) -> Path:
                 f"{', '.join(diff)}); pick a new --out or the same flags to resume it"
             )
     write_json(path, _config_dict(cfg))
+    provenance.record(out)  # which code made what this directory holds
     return out
 
 
@@ -450,6 +451,7 @@ def assemble(cfg, out: Path, runs: dict, checker_report: dict, total_s: float) -
         },
         "methods": methods,
         "comparisons": _comparisons(methods),
+        "code": read_json(out / "code.json") if (out / "code.json").exists() else [],
         "timing": {"total_s": float(total_s),
                    "modes_s": {m: float(r["wall_s"]) for m, r in runs.items()},
                    "devices": [str(d) for d in jax.devices()], "cpu_count": os.cpu_count()},

@@ -134,6 +134,7 @@ RESULTS_SCHEMA: dict[str, Any] = {
         }
     },
     "timing": {"total_s": "float>=0"},
+    "code": "optional: [{sha256, versions, git, first_used}] every code that wrote the run",
 }
 
 
@@ -588,6 +589,23 @@ def _baseline_note(timing: Mapping) -> str:
     )
 
 
+def _code_note(entries: list) -> str:
+    """Which code made the results (``results["code"]``, :mod:`experiments.provenance`)."""
+    if not entries:
+        return ""
+    last = entries[-1]
+    git = f", git {last['git']}" if last.get("git") else ""
+    jax_version = last["versions"].get("jax")
+    note = f"\nCode: sources sha256 {last['sha256'][:12]}{git}, jax {jax_version}.\n"
+    if len(entries) > 1:
+        note += (
+            f"\n**Warning: {len(entries)} versions of the code wrote into this directory** (a "
+            "resume after a change; `code.json`): phases made by an earlier one were kept, so "
+            "a fresh run of the same command may give other figures.\n"
+        )
+    return note
+
+
 def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
     """Validate ``results`` then atomically write ``results.json`` and ``results.md``.
 
@@ -604,6 +622,7 @@ def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
         + f"\nTotal wall time: {_format_duration(float(results['timing']['total_s']))}"
         + _baseline_note(results["timing"])
         + ".\n"
+        + _code_note(results.get("code") or [])
     )
     json_path, md_path = out / "results.json", out / "results.md"
     write_json(json_path, results)

@@ -28,7 +28,7 @@ from helpers.experiment_runs import check_outputs
 import checker as chk
 from agents.runner import NonFiniteError
 from agents.runner import run as run_ppo
-from experiments import phases, pipeline, two_rooms
+from experiments import phases, pipeline, provenance, two_rooms
 from jaxgrid import rundir
 from jaxgrid.io import read_json, read_jsonl
 
@@ -59,6 +59,25 @@ def test_tiny_run_end_to_end(built, capsys):
     assert config["ppo"]["total_timesteps"] == 16_384 and config["checker_train"]["epochs"] == 3
     test_rows = read_json(out / "checker.json")["details"]["test"]["n"]
     assert test_rows == pytest.approx(0.15 * 512, abs=2)  # the checker config's test split
+    code = on_disk["code"]  # one code made every artefact, and it is this one
+    assert [e["sha256"] for e in code] == [provenance.code_identity()["sha256"]]
+    assert "Warning" not in (out / "results.md").read_text()
+
+
+def test_resume_with_other_code_is_recorded_and_reported(run_copy, capsys, monkeypatch):
+    """A resume after the code changed keeps the finished phases, says so on stderr, and the
+    report lists both codes and warns that a fresh run may differ."""
+    cfg, out, state = run_copy
+    other = {**provenance.code_identity(), "sha256": "0" * 64}
+    monkeypatch.setattr(provenance, "code_identity", lambda: other)
+    results = pipeline.run_experiment(cfg)
+    err = capsys.readouterr().err
+    assert "made by other code" in err and "code.json" in err, err
+    assert [e["sha256"] for e in results["code"]][1:] == ["0" * 64]
+    assert "Warning: 2 versions of the code" in (out / "results.md").read_text()
+    assert results["methods"]["checker"]["final"] == state["results"]["methods"]["checker"][
+        "final"
+    ]  # the finished phases were kept
 
 
 @pytest.fixture
