@@ -43,8 +43,7 @@ MULTI_DEVICE_SCRIPT = textwrap.dedent(
     import json, sys
     import jax
     import numpy as np
-    from agents import runner
-from agents.config import PPOConfig
+    from agents.config import PPOConfig
     from agents.runner import run
 
     config = PPOConfig(**json.loads(sys.argv[1]))
@@ -246,8 +245,7 @@ MESH_SCRIPT = textwrap.dedent(
     import dataclasses, json, sys
     import jax
     from helpers.agents_cases import assert_counter_sees_compiles, count_compiles
-    from agents import runner
-from agents.config import PPOConfig
+    from agents.config import PPOConfig
     from agents.runner import run
     from agents.train import make_learner
 
