@@ -384,18 +384,22 @@ class _Programs:
     def warm(self, agents: int, final_episodes: int = 0) -> None:
         """Compile ``init``, ``chunk`` and (if ``final_episodes``) ``final`` for ``agents``."""
         with self._warming:
-            if ("chunk", agents) in self._ready:
-                return
             key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
             keys = jax.ShapeDtypeStruct((agents, *key.shape), key.dtype)
             hparams = {n: jax.ShapeDtypeStruct((agents,), jnp.float32) for n in self.swept}
             abstract = jax.eval_shape(jax.vmap(self.learner.init), keys, hparams)
-            ready = {("init", agents): self.init.lower(keys, hparams).compile(),
-                     ("chunk", agents): self.chunk.lower(abstract).compile()}  # fmt: skip
+            lowerings = {
+                ("init", agents): lambda: self.init.lower(keys, hparams),
+                ("chunk", agents): lambda: self.chunk.lower(abstract),
+            }
             if final_episodes:
-                final = self.final(final_episodes).lower(abstract.params, abstract.hparams)
-                ready["final", agents, final_episodes] = final.compile()
-            self._ready.update(ready)
+                final = self.final(final_episodes)
+                lowerings["final", agents, final_episodes] = lambda: final.lower(
+                    abstract.params, abstract.hparams
+                )
+            for name, lower in lowerings.items():  # each program once, whoever asked first
+                if name not in self._ready:
+                    self._ready[name] = lower().compile()
 
     def executable(self, name: str, agents: int, *args):
         """The compiled ``name`` program for ``agents`` if :meth:`warm` made it (waiting for

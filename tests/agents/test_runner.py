@@ -136,11 +136,10 @@ def test_precompiled_programs_are_used_and_change_nothing(uninterrupted):
     """Programs compiled ahead of time in another thread (as the experiments do while other
     work runs) are the ones ``run`` uses, final evaluation included, with the results of the
     programs ``run`` compiled itself."""
-    thread = threading.Thread(
-        target=precompile, args=(TINY,), kwargs=dict(seeds=SEEDS, final_episodes=4)
-    )
+    thread = threading.Thread(target=precompile, args=(TINY,), kwargs=dict(seeds=SEEDS))
     thread.start()
     thread.join()
+    precompile(TINY, seeds=SEEDS, final_episodes=4)  # adds the final evaluation's program
     programs = runner._programs(TINY, None, multi_host=False)
     for name, args in (("init", ()), ("chunk", ()), ("final", (4,))):
         assert isinstance(programs.executable(name, len(SEEDS), *args), jax.stages.Compiled)
