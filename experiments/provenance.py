@@ -64,16 +64,17 @@ def record(out: Path) -> list[dict]:
     path = out / "code.json"
     entries = read_json(path) if path.exists() else []
     mine = code_identity()
-    same = lambda e: e["sha256"] == mine["sha256"] and e["versions"] == mine["versions"]  # noqa: E731
-    if entries and not same(entries[-1]):
+    if entries:
+        last = entries[-1]
+        if (last["sha256"], last["versions"]) == (mine["sha256"], mine["versions"]):
+            return entries
         print(
             f"warning: --out {out} holds phases made by other code ({path}: "
-            f"{entries[-1]['sha256'][:12]}, now {mine['sha256'][:12]}). They are kept; its "
+            f"{last['sha256'][:12]}, now {mine['sha256'][:12]}). They are kept; its "
             "results will say so. For results one code made, use a fresh --out.",
             file=sys.stderr,
         )
-    if not entries or not same(entries[-1]):
-        stamp = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
-        entries.append({**mine, "first_used": stamp})
-        write_json(path, entries)
+    stamp = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    entries.append({**mine, "first_used": stamp})
+    write_json(path, entries)
     return entries
