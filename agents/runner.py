@@ -381,17 +381,18 @@ class _Programs:
             self._final[num_episodes] = jax.jit(jax.vmap(final))
         return self._final[num_episodes]
 
-    def warm(self, agents: int, final_episodes: int = 0) -> None:
-        """Compile ``init``, ``chunk`` and (if ``final_episodes``) ``final`` for ``agents``."""
+    def warm(self, agents: int, final_episodes: int = 0, train: bool = True) -> None:
+        """Compile ``init`` and ``chunk`` (if ``train``) and, if ``final_episodes``,
+        ``final`` for ``agents``."""
         with self._warming:
             key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
             keys = jax.ShapeDtypeStruct((agents, *key.shape), key.dtype)
             hparams = {n: jax.ShapeDtypeStruct((agents,), jnp.float32) for n in self.swept}
             abstract = jax.eval_shape(jax.vmap(self.learner.init), keys, hparams)
-            lowerings = {
-                ("init", agents): lambda: self.init.lower(keys, hparams),
-                ("chunk", agents): lambda: self.chunk.lower(abstract),
-            }
+            lowerings = {}
+            if train:
+                lowerings["init", agents] = lambda: self.init.lower(keys, hparams)
+                lowerings["chunk", agents] = lambda: self.chunk.lower(abstract)
             if final_episodes:
                 final = self.final(final_episodes)
                 lowerings["final", agents, final_episodes] = lambda: final.lower(
@@ -438,15 +439,28 @@ def precompile(
     final_episodes: int = 0,
     multi_host: bool = False,
     sweep: Mapping[str, Sequence[float]] | None = None,
+    out_dir: str | os.PathLike | None = None,
 ) -> None:
     """Compile the programs of :func:`run` with these arguments, so that ``run`` spends no
     time compiling. Thread-safe: XLA's compiler releases the GIL, so a thread can compile one
     run's programs while another run trains (``experiments.pipeline`` does); a ``run`` that
     needs programs still compiling here waits for them. Same results as without it.
+    Where ``out_dir`` already records a checkpoint of the last chunk, only the final
+    evaluation compiles: resuming a finished run trains nothing.
     """
     sweep = check_sweep(sweep, config)
     agents = len(seeds) * int(np.prod([len(v) for v in sweep.values()]))
-    _programs(config, checker, multi_host, tuple(sweep)).warm(agents, final_episodes)
+    train = out_dir is None or not _finished(Path(out_dir), config)
+    _programs(config, checker, multi_host, tuple(sweep)).warm(agents, final_episodes, train)
+
+
+def _finished(out: Path, config: PPOConfig) -> bool:
+    """Whether ``out``'s checkpoint digests list the run's last chunk (a guess for
+    :func:`precompile`: :func:`run` still verifies the files, and compiles what it needs)."""
+    try:
+        return str(config.num_chunks) in io.read_json(out / DIGESTS)
+    except (FileNotFoundError, ValueError):
+        return False
 
 
 def _kept(manager, out: Path | None) -> str:

@@ -316,6 +316,8 @@ class Compiler:
     compile time. :meth:`submit` queues the modes without a checker (before it is trained)
     or those with one; :meth:`wait` before a mode trains: it waits for that mode's programs,
     or takes the job back if the thread has not started it (the run then compiles them).
+    A mode whose run directory holds its last checkpoint gets only its final evaluation
+    compiled: resuming a finished run retrains nothing.
     """
 
     def __init__(self, cfg):
@@ -328,7 +330,9 @@ class Compiler:
         for mode in self.cfg.modes:
             config, checker, common = _agents(self.cfg, mode, trained)
             if mode not in self.jobs and config.uses_checker == (trained is not None):
-                self.jobs[mode] = self.pool.submit(precompile, config, checker, **common)
+                out_dir = Path(self.cfg.out) / "modes" / mode  # finished: the final only
+                self.jobs[mode] = self.pool.submit(precompile, config, checker, **common,
+                                                   out_dir=out_dir)  # fmt: skip
                 self.order.append(mode)
 
     def wait(self, mode: str) -> None:

@@ -152,6 +152,22 @@ def test_precompiled_programs_are_used_and_change_nothing(uninterrupted):
     assert set(ahead["final"]) >= {"violation_rate", "success_rate"}
 
 
+def test_precompile_of_a_finished_run_compiles_only_its_final_evaluation(tmp_path):
+    """Resuming a finished run trains nothing, so only its final evaluation is compiled."""
+    config = dataclasses.replace(TINY, ent_coef=0.02)  # programs of its own
+    assert config.num_chunks == 2
+    digests = tmp_path / runner.DIGESTS
+    digests.write_text(json.dumps({"1": {}}))
+    assert not runner._finished(tmp_path, config)
+    digests.write_text(json.dumps({"1": {}, "2": {}}))
+    assert runner._finished(tmp_path, config)
+    precompile(config, seeds=SEEDS, final_episodes=4, out_dir=tmp_path)
+    programs = runner._programs(config, None, multi_host=False)
+    assert isinstance(programs.executable("final", len(SEEDS), 4), jax.stages.Compiled)
+    for name in ("init", "chunk"):
+        assert not isinstance(programs.executable(name, len(SEEDS)), jax.stages.Compiled)
+
+
 def test_run_result(uninterrupted):
     r = uninterrupted
     assert r["complete"]
