@@ -69,6 +69,7 @@ def test_lagrange_multiplier_rises_with_cost(lagrangian_train):
     assert np.all(np.asarray(out["runner"].lagrange) == lam[:, -1])
 
 
+@pytest.mark.slow  # penalty_start is an ablation flag; the multiplier is tested above
 def test_lagrange_multiplier_waits_for_penalty_start(tiny_checker):
     """Before ``penalty_start`` the multiplier stays at ``lagrangian_init``; then it moves."""
     # penalty=0: the multiplier follows the schedule, not the shaping penalty's size.
@@ -109,6 +110,7 @@ def test_sentence_encoders_skip_the_pad_tail():
     np.testing.assert_array_equal(fast_jit(learner.lang_table)(params), full)
 
 
+@pytest.mark.slow  # two more training compiles (about 20 s)
 def test_training_does_not_depend_on_the_evaluation_schedule():
     """Evaluation plays on its own fixed key: the same run evaluated after every update or
     once at the end trains bit-identical agents (``eval_every`` only sets the curves)."""

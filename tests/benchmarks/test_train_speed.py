@@ -53,6 +53,7 @@ def test_tiny_run_prints_one_json_line_per_mode(tmp_path, capsys):
         assert "ActorCritic" in places  # Flax module names reach the profile
 
 
+@pytest.mark.slow  # the MLP encoder also trains in tests/agents/test_train.py
 def test_mlp_flag_times_the_policy_without_convolution(monkeypatch):
     built = []
     real = train_speed.make_config

@@ -191,6 +191,7 @@ def test_checker_is_trained_again(run_copy, capsys, name, how):
     assert same_tree(chk.load(out / "checker").params, trained.params)
 
 
+@pytest.mark.slow  # a retrain; phase c's redo is covered by the damaged-params case
 def test_checker_of_other_data_is_trained_again(run_copy, capsys):
     cfg, out, state = run_copy
     other = state["data"].subset(np.arange(len(state["data"]) - 1))
