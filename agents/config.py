@@ -48,7 +48,11 @@ class PPOConfig:
     ``penalty_start`` fraction of the updates (0 by default: the constraint acts from the
     first update), then ramps linearly to ``penalty`` over the next ``penalty_warmup``
     fraction; the Lagrangian multiplier stays at ``lagrangian_init`` until the ramp begins.
-    The shields block from the first step whatever ``penalty_start``.
+    The shields block from the first step whatever ``penalty_start``. With ``penalty_gate``
+    g > 0 the penalty is also scaled by min(1, s / g), s the fraction of the previous
+    update's finished training episodes that reached the goal (0 before the first): it
+    stays small while the agent rarely reaches the goal, and shrinks again when a penalised
+    agent stops reaching it.
 
     With ``end_episode`` the ``shaped`` and ``checker`` modes also end the training episode
     where their signal fires (a violation, an alarm; OmniSafe's early-termination baseline):
@@ -90,6 +94,9 @@ class PPOConfig:
     penalty: float = 1.0
     penalty_start: float = 0.0  # fraction of the run before the penalty acts (an ablation)
     penalty_warmup: float = 0.1  # fraction of the run over which the penalty ramps up
+    # scale the penalty by the last update's training success rate over this value, capped
+    # at 1 (0: off)
+    penalty_gate: float = 0.0
     checker_threshold: float = 0.5  # checker probability above which it alarms
     soft_checker: bool = False  # penalise the checker's probability instead of its alarm
     # checker, lagrangian: only the step that raises an alarm counts, not its repeats while
@@ -136,7 +143,7 @@ class PPOConfig:
         for name in ("lr", "clip_eps", "max_grad_norm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"PPOConfig.{name} must be > 0, got {getattr(self, name)!r}")
-        for name in ("gamma", "gae_lambda", "penalty_start", "penalty_warmup"):
+        for name in ("gamma", "gae_lambda", "penalty_start", "penalty_warmup", "penalty_gate"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"PPOConfig.{name} must be in [0, 1], got {getattr(self, name)}")
         if not 0 < self.checker_threshold < 1:  # 0 or 1 would alarm always or never

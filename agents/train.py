@@ -56,6 +56,8 @@ class RunnerState(struct.PyTreeNode):
     # float32 values of the swept hyperparameters (names of SWEEPABLE) where they differ
     # between the agents of one program; every other one is the config's constant.
     hparams: dict = struct.field(default_factory=dict)
+    # float32 training success rate of the last update (read only with a penalty gate)
+    success: jax.Array = struct.field(default_factory=lambda: jnp.zeros((), jnp.float32))
 
 
 class Learner(struct.PyTreeNode):
@@ -143,6 +145,14 @@ class Learner(struct.PyTreeNode):
         penalty = self.config.penalty if penalty is None else penalty
         return (penalty * self.constraint_ramp(update)).astype(jnp.float32)
 
+    def penalty_of(self, runner: RunnerState):
+        """The runner's penalty this update: :meth:`penalty_at`, times the success gate
+        (``penalty_gate``) where there is one."""
+        penalty = self.penalty_at(runner.update, self.hparam(runner, "penalty"))
+        if self.config.penalty_gate > 0:
+            penalty = penalty * jnp.minimum(1.0, runner.success / self.config.penalty_gate)
+        return penalty
+
     def hparam(self, runner: RunnerState, name: str):
         """The agent's value of hyperparameter ``name``: traced where swept, else the
         config's constant (so that a run without a sweep compiles the same program)."""
@@ -199,6 +209,7 @@ class Learner(struct.PyTreeNode):
             update=jnp.zeros((), jnp.int32),
             env=carry,
             hparams={k: jnp.asarray(v, jnp.float32) for k, v in hparams.items()},
+            success=jnp.zeros((), jnp.float32),
         )
 
     # -- rollout and update -------------------------------------------------------------
@@ -211,8 +222,7 @@ class Learner(struct.PyTreeNode):
             rollout.env_step, config=self.config, env=self.envs,
             policy=self.policy(runner.params, lang_table), table=self.table, words=self.words,
             checker=self.checker, shield=self.shield_for(runner.hparams),
-            penalty=self.penalty_at(runner.update, self.hparam(runner, "penalty")),
-            novelty=self.novelty_at(runner.update),
+            penalty=self.penalty_of(runner), novelty=self.novelty_at(runner.update),
             threshold=self.hparam(runner, "checker_threshold"),
         )  # fmt: skip
         keys = jax.random.split(key, self.config.num_steps)
@@ -236,7 +246,7 @@ class Learner(struct.PyTreeNode):
         key, rollout_key, perm_key = jax.random.split(runner.key, 3)
         params = runner.params
         env, traj, stats, batch = self.collect(runner, rollout_key, self.lang_table(params))
-        penalty = self.penalty_at(runner.update, self.hparam(runner, "penalty"))
+        penalty = self.penalty_of(runner)
         blocked_weight = penalty if self.shield is not None else 0.0
         ent_coef = self.hparam(runner, "ent_coef")
         # A swept learning rate scales the optimiser's step (Adam's step is linear in it).
@@ -272,6 +282,10 @@ class Learner(struct.PyTreeNode):
             params=params, opt_state=opt_state, lagrange=lagrange, key=key,
             update=runner.update + 1, env=env,
         )  # fmt: skip
+        if c.penalty_gate > 0:  # the gate's success rate (held where no episode finished)
+            episodes = stats["episodes"].sum()
+            success = stats["successes"].sum() / jnp.maximum(episodes, 1)
+            runner = runner.replace(success=jnp.where(episodes > 0, success, runner.success))
         return runner, metrics
 
     def minibatches(self, batch: dict, key: jax.Array) -> dict:

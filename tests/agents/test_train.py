@@ -197,6 +197,27 @@ def test_every_schedule_ends_on_the_last_update_run():
     assert counts and all(int(n) == steps for _, n in counts)
 
 
+def test_penalty_gate_scales_the_penalty_by_the_last_updates_success():
+    """``penalty_gate``: the ramp's penalty times min(1, success / gate), the success being
+    the fraction of the last update's finished training episodes that reached the goal."""
+    c = dataclasses.replace(TINY, reward_mode="shaped", penalty=0.8, penalty_gate=0.5,
+                            num_envs=16, num_steps=104, total_timesteps=16 * 104 * 2)  # fmt: skip
+    learner = make_learner(c)
+    runner = fast_jit(learner.init)(jax.random.PRNGKey(0))
+    assert float(runner.success) == 0.0 and float(learner.penalty_of(runner)) == 0.0
+    for success, scale in ((0.25, 0.5), (0.5, 1.0), (0.9, 1.0)):
+        gated = learner.penalty_of(runner.replace(success=jnp.float32(success)))
+        np.testing.assert_allclose(gated, 0.8 * scale, rtol=1e-6)
+    ungated = make_learner(dataclasses.replace(c, penalty_gate=0.0))
+    assert float(ungated.penalty_of(runner)) == np.float32(0.8)
+    runner, metrics = fast_jit(learner.update)(runner)
+    episodes, successes = int(metrics["episodes"]), int(metrics["successes"])
+    assert episodes >= c.num_envs  # every episode ends within 100 steps
+    np.testing.assert_allclose(runner.success, successes / episodes, rtol=1e-6)
+    with pytest.raises(ValueError, match="penalty_gate"):
+        dataclasses.replace(c, penalty_gate=1.5)
+
+
 def test_anneals_end_at_zero_after_the_last_update():
     """After the last update (update ``num_updates``, optimizer step ``num_updates *
     update_epochs * num_minibatches``) the novelty bonus and the learning rate are 0 up to
