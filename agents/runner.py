@@ -80,6 +80,7 @@ def _shardings(runner: RunnerState, mesh: Mesh):
         update=replicated,
         env=jax.tree.map(lambda _: split, runner.env),
         hparams=jax.tree.map(lambda _: replicated, runner.hparams),
+        success=replicated,
     )
 
 
