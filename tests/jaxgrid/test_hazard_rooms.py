@@ -136,6 +136,7 @@ def test_the_oracle_solves_every_episode_without_a_violation(n):
     assert (r["violations"] == 0).all()
 
 
+@pytest.mark.slow  # 17 s; python -m benchmarks.hazard_checks measures it over 10,000 episodes
 def test_ignoring_the_constraint_violates_it_often():
     r = rollout_oracle(ENV, jax.random.key(11), 1000, obey_constraint=False, avoid_lava=False)
     r = jax.tree.map(np.asarray, r)
