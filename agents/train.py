@@ -283,8 +283,8 @@ class Learner(struct.PyTreeNode):
             update=runner.update + 1, env=env,
         )  # fmt: skip
         if c.penalty_gate > 0:  # the gate's success rate (held where no episode finished)
-            episodes = stats["episodes"].sum()
-            success = stats["successes"].sum() / jnp.maximum(episodes, 1)
+            episodes = metrics["episodes"]
+            success = metrics["successes"] / jnp.maximum(episodes, 1)
             runner = runner.replace(success=jnp.where(episodes > 0, success, runner.success))
         return runner, metrics
 
