@@ -531,6 +531,7 @@ def _check_run_info(
     diff = sorted(
         k for k in set(saved["config"]) | set(now["config"])
         if saved["config"].get(k) != now["config"].get(k)
+        and not (k not in saved["config"] and io.holds_declared_default(config, k))
     )  # fmt: skip
     if diff:
         raise ValueError(

@@ -28,7 +28,7 @@ from agents.runner import run as run_ppo
 from agents.train import make_learner
 from checker.trained import params_sha256
 from experiments import provenance, stats
-from jaxgrid.io import read_json, to_jsonable, write_json, write_jsonl
+from jaxgrid.io import holds_declared_default, read_json, to_jsonable, write_json, write_jsonl
 
 # Checker metrics copied into results.json (all rates).
 CHECKER_KEYS = ("accuracy", "precision", "recall", "f1", "auroc", "ece")
@@ -88,7 +88,11 @@ def prepare_out(cfg) -> Path:
             raise ValueError(f"{e}: it records the configuration of the run in --out "
                              f"{cfg.out}; delete it to resume with these flags") from None
         theirs = {k: v for k, v in _flat(saved).items() if k not in ("progress", "out")}
-        diff = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
+        diff = sorted(
+            k for k in mine.keys() | theirs.keys()
+            if mine.get(k) != theirs.get(k)
+            and not (k not in theirs and holds_declared_default(cfg, k))
+        )  # fmt: skip
         if diff:
             raise ValueError(
                 f"--out {cfg.out} holds a run with another configuration (differs in "

@@ -13,6 +13,7 @@ Only the standard library and numpy are imported: JAX arrays are recognised by t
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import numbers
@@ -111,6 +112,31 @@ def _convert(x: Any, where: str) -> Any:
             raise TypeError(f"{where}: cannot write an array of dtype {arr.dtype} as JSON")
         return _convert(arr.tolist(), where)
     raise TypeError(f"{where}: cannot write {type(x).__name__} as JSON")
+
+
+def holds_declared_default(obj: Any, key: str) -> bool:
+    """Whether field ``key`` of dataclass ``obj`` (dotted for nested ones: ``"ppo.lr"``)
+    holds the default its class declares.
+
+    A record written before a field existed lacks it; the run it describes is the same run
+    when the field now holds its declared default (new options are added off by default), so
+    resuming it is safe. A field without a default, or a key that names none, is False.
+    """
+    *path, name = key.split(".")
+    for part in path:
+        obj = getattr(obj, part, None)
+    if not dataclasses.is_dataclass(obj) or isinstance(obj, type):
+        return False
+    field = {f.name: f for f in dataclasses.fields(obj)}.get(name)
+    if field is None:
+        return False
+    if field.default is not dataclasses.MISSING:
+        default = field.default
+    elif field.default_factory is not dataclasses.MISSING:
+        default = field.default_factory()
+    else:
+        return False
+    return to_jsonable(getattr(obj, name)) == to_jsonable(default)
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> Path:

@@ -220,6 +220,24 @@ def test_checkpoint_resume_is_bit_identical(tmp_path, uninterrupted):
     assert len(read_jsonl(tmp_path / "metrics.jsonl")) == 4
 
 
+def test_run_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
+    """A ``run.json`` written before a config field existed describes the same run while
+    the field holds its declared default (new options are added off by default)."""
+    runner._write_run_info(tmp_path, TINY, list(SEEDS))
+    saved = json.loads((tmp_path / "run.json").read_text())
+    del saved["config"]["penalty_gate"]
+    (tmp_path / "run.json").write_text(json.dumps(saved))
+    runner._check_run_info(tmp_path, TINY, list(SEEDS))
+    gated = dataclasses.replace(TINY, penalty_gate=0.5)
+    with pytest.raises(ValueError, match="penalty_gate"):
+        runner._check_run_info(tmp_path, gated, list(SEEDS))
+    del saved["config"]["num_envs"]  # TINY's is not PPOConfig's default: refused
+    (tmp_path / "run.json").write_text(json.dumps(saved))
+    assert TINY.num_envs != PPOConfig.num_envs
+    with pytest.raises(ValueError, match="num_envs"):
+        runner._check_run_info(tmp_path, TINY, list(SEEDS))
+
+
 # ------------------------------------------------------------------- non-finite guard
 # Every step raises the checker's alarm (threshold 1e-6, far below the tiny checker's
 # probabilities); the penalty is 0 for the first chunk

@@ -231,6 +231,23 @@ def test_out_of_another_configuration_is_refused(tmp_path, capsys):
     assert "another configuration" in err and "ppo.lr" in err and "seeds" in err
 
 
+def test_out_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
+    """A config.json written before ``ppo.penalty_gate`` existed: the same run while the gate
+    is off, another one (named) when it is on."""
+    argv = ["--quick", "--no-progress", "--out", str(tmp_path)]
+    cfg = pipeline.parse_args(argv, two_rooms.SCENARIO)
+    phases.prepare_out(cfg)
+    saved = json.loads((tmp_path / "config.json").read_text())
+    del saved["ppo"]["penalty_gate"]
+    (tmp_path / "config.json").write_text(json.dumps(saved))
+    phases.prepare_out(cfg)  # resumes, and records the field from now on
+    assert "penalty_gate" in json.loads((tmp_path / "config.json").read_text())["ppo"]
+    (tmp_path / "config.json").write_text(json.dumps(saved))
+    gated = pipeline.parse_args([*argv, "--penalty-gate", "0.5"], two_rooms.SCENARIO)
+    with pytest.raises(ValueError, match="ppo.penalty_gate"):
+        phases.prepare_out(gated)
+
+
 # ------------------------------------------------------------------------------ end to end
 @pytest.fixture(scope="module")
 def two_rooms_run(tmp_path_factory):

@@ -216,3 +216,27 @@ def test_check_free_refuses_a_held_lock_and_writes_nothing(tmp_path):
         with pytest.raises(rundir.LockHeld, match="holder"):
             rundir.check_free(tmp_path / "run")
     rundir.check_free(tmp_path / "run")
+
+
+def test_holds_declared_default_reads_nested_fields_and_their_classes():
+    import dataclasses
+
+    @dataclasses.dataclass(frozen=True)
+    class Inner:
+        lr: float = 1e-3
+        sizes: tuple = (16,)
+        name: str = dataclasses.field(default_factory=lambda: "adam")
+
+    @dataclasses.dataclass(frozen=True)
+    class Outer:
+        required: int
+        inner: Inner = Inner(lr=5e-4)  # a preset: the class default is Inner's own
+
+    cfg = Outer(required=3)
+    assert io.holds_declared_default(cfg, "inner.sizes")
+    assert io.holds_declared_default(cfg, "inner.name")
+    assert not io.holds_declared_default(cfg, "inner.lr")  # 5e-4, not Inner's 1e-3
+    assert not io.holds_declared_default(cfg, "required")  # no default declared
+    assert not io.holds_declared_default(cfg, "inner.missing")
+    assert not io.holds_declared_default(cfg, "nothing.lr")
+    assert not io.holds_declared_default(Outer(3, Inner(sizes=[32])), "inner.sizes")
