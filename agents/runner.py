@@ -646,6 +646,12 @@ def _verified_step(manager, out: Path) -> int:
 
 
 def _restore(manager, step, abstract, shardings):
+    """The runner state of checkpoint ``step``. A checkpoint written before a
+    :class:`RunnerState` field with a default existed is restored without it, and the field
+    starts from zeros (such fields are added with zero as their initial value, and are read
+    only by options that the configuration check proves off for such a run)."""
+    import sys
+
     import orbax.checkpoint as ocp
 
     if shardings is not None:
@@ -657,8 +663,34 @@ def _restore(manager, step, abstract, shardings):
     try:
         return manager.restore(step, args=ocp.args.StandardRestore(target))
     except Exception as e:  # orbax's and tensorstore's errors share no base class
+        error = e
+    # Fields are added last, with a default: try without the newest one, then two, ...
+    fields = dataclasses.fields(target)
+    defaulted = [f.name for f in fields
+                 if f.default_factory is not dataclasses.MISSING
+                 and jax.tree.leaves(getattr(target, f.name))]  # fmt: skip
+    restored = None
+    for k in range(1, len(defaulted) + 1):
+        added = defaulted[-k:]
+        older = {f.name: getattr(target, f.name) for f in fields if f.name not in added}
+        try:
+            restored = manager.restore(step, args=ocp.args.StandardRestore(older))
+            break
+        except Exception:
+            continue
+    if restored is None:
         raise ResumeError(f"{manager.directory}: checkpoint {step} cannot be restored "
-                          f"({type(e).__name__}: {e}); delete it to start over") from e
+                          f"({type(error).__name__}: {error}); delete it to start over"
+                          ) from error  # fmt: skip
+
+    def zeros(a):
+        z = jnp.zeros(a.shape, a.dtype)
+        return z if getattr(a, "sharding", None) is None else jax.device_put(z, a.sharding)
+
+    print(f"{manager.directory}: checkpoint {step} predates {', '.join(added)}; "
+          "starting from zeros", file=sys.stderr)  # fmt: skip
+    filled = {n: jax.tree.map(zeros, getattr(target, n)) for n in added}
+    return type(target)(**restored, **filled)
 
 
 def _read_records(path: Path, chunks: int, seeds: list[tuple], ident=_ident) -> list[dict]:

@@ -238,6 +238,28 @@ def test_run_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
         runner._check_run_info(tmp_path, TINY, list(SEEDS))
 
 
+def test_checkpoint_written_before_a_runner_field_existed_resumes(tmp_path, uninterrupted,
+                                                                   capsys):
+    """A checkpoint without ``RunnerState.success`` (written before it existed) resumes, the
+    field from zeros, and the run ends as the uninterrupted one."""
+    import orbax.checkpoint as ocp
+
+    run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False, max_chunks=1)
+    manager = runner._checkpoint_manager(tmp_path / "checkpoints")
+    saved = manager.restore(1)
+    assert "success" in saved
+    manager.delete(1)
+    manager.save(1, args=ocp.args.StandardSave({k: v for k, v in saved.items()
+                                                 if k != "success"}))  # fmt: skip
+    manager.wait_until_finished()
+    runner._record_digests(manager, tmp_path)
+    done = run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False)
+    assert "predates success" in capsys.readouterr().err
+    assert done["complete"]
+    for a, b in zip(leaves(done["params"]), leaves(uninterrupted["params"]), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 # ------------------------------------------------------------------- non-finite guard
 # Every step raises the checker's alarm (threshold 1e-6, far below the tiny checker's
 # probabilities); the penalty is 0 for the first chunk
