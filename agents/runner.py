@@ -622,10 +622,10 @@ def _record_digests(manager, out: Path) -> None:
     io.write_json(path, {k: v for k, v in kept.items() if v is not None})
 
 
-def _verified_step(manager, out: Path) -> int:
+def _verified_step(manager, out: Path, delete: bool = True) -> int:
     """The newest checkpoint whose files match ``checkpoints.json``; newer ones that do not
-    (damaged, or written by a run killed before recording them) are deleted, with a message.
-    :class:`ResumeError` if none matches."""
+    (damaged, or written by a run killed before recording them) are deleted (if ``delete``),
+    with a message. :class:`ResumeError` if none matches."""
     import sys
 
     path = out / DIGESTS
@@ -638,9 +638,10 @@ def _verified_step(manager, out: Path) -> int:
         if recorded.get(str(step)) == _step_digests(manager, step):
             return int(step)
         print(f"{Path(manager.directory) / str(step)}: damaged or unverified checkpoint (its "
-              f"files differ from {path}); deleted, resuming from an older one",
+              f"files differ from {path}); {'deleted, ' if delete else ''}using an older one",
               file=sys.stderr)  # fmt: skip
-        manager.delete(step)
+        if delete:
+            manager.delete(step)
     raise ResumeError(f"{manager.directory}: no checkpoint matches {path}; delete them to "
                       "start over")
 
@@ -691,6 +692,49 @@ def _restore(manager, step, abstract, shardings):
           "starting from zeros", file=sys.stderr)  # fmt: skip
     filled = {n: jax.tree.map(zeros, getattr(target, n)) for n in added}
     return type(target)(**restored, **filled)
+
+
+def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
+    """The trained agents of a directory that :func:`run` wrote, from its newest verified
+    checkpoint, without training or compiling anything (nothing in the directory changes).
+
+    ``checker``: the one the run was trained with, required by the checker modes and checked
+    against the run's record. Returns ``config`` (:class:`PPOConfig`), ``learner``,
+    ``seeds`` and ``hparams`` (one entry per agent; swept values as arrays), ``params``
+    (stacked over agents), ``chunks`` (chunks done) and ``complete``.
+    """
+    out = Path(out_dir)
+    try:
+        info = io.read_json(out / "run.json")
+        saved = info["config"]
+    except FileNotFoundError:
+        raise ValueError(f"{out}: no run.json, so no run of agents.runner.run") from None
+    except (ValueError, TypeError, KeyError) as e:
+        raise ValueError(f"{out / 'run.json'}: damaged ({e})") from None
+    tuples = lambda x: tuple(map(tuples, x)) if isinstance(x, list) else x  # noqa: E731
+    known = {f.name for f in dataclasses.fields(PPOConfig)}
+    config = PPOConfig(**{k: tuples(v) for k, v in saved.items() if k in known})
+    if _checker_sha256(checker) != info.get("checker_sha256"):
+        raise ValueError(f"{out}: the run was trained with "
+                         f"{'another checker' if info.get('checker_sha256') else 'no checker'}"
+                         f"{'' if checker is not None else ' (pass its checker)'}")  # fmt: skip
+    sweep = check_sweep(info.get("sweep"), config)
+    seeds = [int(s) for s in info["seeds"]]  # one per agent: the grid's, seed by seed
+    grid = list(itertools.product(*sweep.values()))
+    per_value = len(seeds) // len(grid)
+    hparams = {n: jnp.asarray([v[j] for v in grid for _ in range(per_value)], jnp.float32)
+               for j, n in enumerate(sweep)}  # fmt: skip
+    learner = make_learner(config, checker)
+    keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
+    abstract = jax.eval_shape(jax.vmap(learner.init), keys, hparams)
+    if not (out / "checkpoints").is_dir():
+        raise ValueError(f"{out / 'checkpoints'}: no checkpoint")
+    manager = _checkpoint_manager(out / "checkpoints")
+    chunks = _verified_step(manager, out, delete=False)
+    state = _restore(manager, chunks, abstract, None)
+    return {"config": config, "learner": learner, "seeds": seeds, "hparams": hparams,
+            "params": state.params, "chunks": chunks,
+            "complete": chunks == config.num_chunks}  # fmt: skip
 
 
 def _read_records(path: Path, chunks: int, seeds: list[tuple], ident=_ident) -> list[dict]:

@@ -1,0 +1,133 @@
+"""Where trained agents still violate: their final policies replayed, split by constraint.
+
+``python -m experiments.breakdown --run DIR/modes/checker [--episodes 2000]``
+
+Each agent of a finished run directory (a mode of an experiment, or any ``--out`` of
+:func:`agents.runner.run`) plays the same fixed-seed episodes; the episodes with a violation
+and those that reach the goal are counted per sentence template and per colour the sentence
+names. An agent that has learned the constraint for some colours and not yet for others
+shows it here, where the run's single violation rate cannot. The checker modes need the
+checker the run was trained with (``--checker``; by default the experiment's
+``DIR/checker``). In the shield modes the shield is on unless ``--policy-alone``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import checker as chk
+from agents.runner import load_agents
+from checker import cli
+from jaxgrid import hazard_language, language
+from jaxgrid.io import read_json, write_json
+
+
+@dataclasses.dataclass(frozen=True)
+class BreakdownConfig:
+    """What to replay and how."""
+
+    run: str = ""  # a run directory (run.json, checkpoints/), e.g. an experiment's modes/checker
+    checker: str | None = None  # its checker (None: the experiment's checker/, if it has one)
+    episodes: int = 2000  # fixed-seed episodes per agent
+    seed: int = 0  # seed of the episodes
+    policy_alone: bool = False  # shield modes: replay without the shield
+    out: str | None = None  # JSON file for the results; None: print only
+
+    def __post_init__(self):
+        me = type(self).__name__
+        if not self.run or not (Path(self.run) / "run.json").exists():
+            raise ValueError(f"{me}.run {self.run!r}: no run.json there (give a directory "
+                             "that agents.runner.run wrote, e.g. OUT/modes/checker)")  # fmt: skip
+        if self.checker is not None and not (Path(self.checker) / "config.json").exists():
+            raise ValueError(f"{me}.checker {self.checker}: no trained checker there")
+        if not isinstance(self.episodes, int) or self.episodes < 1:
+            raise ValueError(f"{me}.episodes must be an integer >= 1, got {self.episodes!r}")
+
+
+def _checker_of(cfg: BreakdownConfig):
+    """The run's checker: ``--checker``, else the experiment's; None if the run had none."""
+    if not read_json(Path(cfg.run) / "run.json").get("checker_sha256"):
+        return None
+    path = Path(cfg.checker or Path(cfg.run).parent.parent / "checker")
+    if not (path / "config.json").exists():
+        raise ValueError(f"{cfg.run} was trained with a checker: pass it with --checker")
+    return chk.load(path)
+
+
+def groups(constraints: np.ndarray, template_ids: np.ndarray) -> dict[str, np.ndarray]:
+    """Boolean episode masks per ``template <id>: <an example sentence>`` and per
+    ``colour <names>`` (the colour words the sentence names, ``none`` if it names none)."""
+    sentences = [hazard_language.detokenize(c) for c in constraints]
+    out = {}
+    for t in np.unique(template_ids):
+        example = sentences[int(np.flatnonzero(template_ids == t)[0])]
+        out[f"template {int(t)}: {example}"] = template_ids == t
+    named = np.array([" ".join(w for w in s.split() if w in language.COLOURS) or "none"
+                      for s in sentences])  # fmt: skip
+    for c in sorted(set(named)):
+        out[f"colour {c}"] = named == c
+    return out
+
+
+def run(cfg: BreakdownConfig) -> dict:
+    agents = load_agents(cfg.run, _checker_of(cfg))
+    learner, config = agents["learner"], agents["config"]
+    if not agents["complete"]:
+        print(f"{cfg.run}: unfinished ({agents['chunks']} of {config.num_chunks} chunks); "
+              "replaying its newest checkpoint")  # fmt: skip
+    key = jax.random.PRNGKey(cfg.seed)
+    reset_key, _ = jax.random.split(key)  # play_episodes draws its layouts from this key
+    _, ts = jax.vmap(learner.env.reset)(jax.random.split(reset_key, cfg.episodes))
+    masks = groups(np.asarray(ts.observation["constraint"]), np.asarray(ts.info["template_id"]))
+    play = jax.jit(lambda p, h: learner.evaluate(p, key, cfg.episodes,
+                                                 shielded=not cfg.policy_alone, hparams=h))
+    rows = []
+    for i, seed in enumerate(agents["seeds"]):
+        params = jax.tree.map(lambda x, i=i: x[i], agents["params"])
+        hparams = {n: v[i] for n, v in agents["hparams"].items()}
+        ep = jax.tree.map(np.asarray, play(params, hparams))
+        row = {"seed": seed, **{n: float(v) for n, v in hparams.items()},
+               "violation_rate": float(ep["violated"].mean()),
+               "success_rate": float(ep["success"].mean()), "groups": {}}  # fmt: skip
+        for name, m in masks.items():
+            row["groups"][name] = {"episodes": int(m.sum()),
+                                   "violation_rate": float(ep["violated"][m].mean()),
+                                   "success_rate": float(ep["success"][m].mean())}  # fmt: skip
+        rows.append(row)
+    _print(cfg, rows)
+    out = {"config": dataclasses.asdict(cfg), "mode": config.reward_mode, "agents": rows}
+    if cfg.out:
+        write_json(Path(cfg.out), out)
+    return out
+
+
+def _print(cfg: BreakdownConfig, rows: list[dict]) -> None:
+    names = list(rows[0]["groups"])
+    print(f"{cfg.run}: violation % / success % over {cfg.episodes} episodes per agent")
+    swept = [k for k in rows[0] if k not in ("seed", "violation_rate", "success_rate", "groups")]
+    labels = [f"seed {r['seed']}" + "".join(f" {k}={r[k]:g}" for k in swept) for r in rows]
+    width = max(len(n) for n in [*names, "all"])
+    print(" " * width + "  " + "  ".join(f"{lab:>14}" for lab in labels))
+
+    def cell(g):
+        return f"{100 * g['violation_rate']:5.1f} / {100 * g['success_rate']:5.1f}"
+
+    print(f"{'all':<{width}}  " + "  ".join(f"{cell(r):>14}" for r in rows))
+    for n in names:
+        print(f"{n:<{width}}  " + "  ".join(f"{cell(r['groups'][n]):>14}" for r in rows))
+
+
+def main(argv=None) -> dict:
+    cfg = cli.parse(BreakdownConfig, argv, prog="python -m experiments.breakdown",
+                    description=__doc__.split("\n\n")[0])  # fmt: skip
+    return run(cfg)
+
+
+if __name__ == "__main__":
+    main()
+
+__all__ = ["BreakdownConfig", "groups", "main", "run"]
