@@ -1,7 +1,7 @@
 """``agents.runner.run``: compiles once, logs, checkpoints and resumes bit-identically,
 stops on a non-finite chunk with the last good checkpoint intact, checks the env batch
 against the devices before compiling, and shards over several devices with the results of
-one.
+one; ``load_agents`` and ``experiments.breakdown`` replay a finished run's agents.
 
 Compilations are counted through ``jax.monitoring`` (``helpers.agents_cases.count_compiles``);
 ``run`` keeps its compiled programs between calls with the same configuration, so the
@@ -32,7 +32,8 @@ from helpers.host_devices import ROOT, device_env
 
 from agents import runner
 from agents.config import PPOConfig
-from agents.runner import NonFiniteError, precompile, run
+from agents.runner import NonFiniteError, load_agents, precompile, run
+from experiments import breakdown
 
 # ------------------------------------------------------------------ multi-device process
 # Slow: a fresh process with 4 host devices compiles the sharded programs. When the test is
@@ -258,6 +259,65 @@ def test_checkpoint_written_before_a_runner_field_existed_resumes(tmp_path, unin
     assert done["complete"]
     for a, b in zip(leaves(done["params"]), leaves(uninterrupted["params"]), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+# ------------------------------------------------------------ loading trained agents
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory, runs):
+    """A finished ``run(TINY)`` in a directory (the module's programs, already compiled)."""
+    out = tmp_path_factory.mktemp("finished")
+    return out, run(TINY, seeds=SEEDS, out_dir=out, progress=False)
+
+
+def test_agents_load_as_trained_without_changing_the_directory(finished):
+    out, result = finished
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    agents = load_agents(out)
+    assert agents["complete"] and agents["seeds"] == list(SEEDS)
+    assert agents["config"] == dataclasses.replace(TINY, seed=agents["config"].seed)
+    for a, b in zip(leaves(agents["params"]), leaves(result["params"]),
+                    strict=True):  # fmt: skip
+        np.testing.assert_array_equal(a, b)
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
+
+
+def test_every_episode_falls_in_one_template_and_one_colour_group(finished, tmp_path):
+    out, _ = finished
+    cfg = breakdown.BreakdownConfig(run=str(out), episodes=24, out=str(tmp_path / "b.json"))
+    result = breakdown.run(cfg)
+    assert [r["seed"] for r in result["agents"]] == list(SEEDS)
+    for row in result["agents"]:
+        for kind in ("template", "colour"):
+            groups = {k: g for k, g in row["groups"].items() if k.startswith(kind)}
+            assert sum(g["episodes"] for g in groups.values()) == 24
+            overall = sum(g["episodes"] * g["violation_rate"] for g in groups.values()) / 24
+            assert overall == pytest.approx(row["violation_rate"])
+    assert (tmp_path / "b.json").exists()
+
+
+def test_groups_name_the_colours_a_sentence_names():
+    from jaxgrid import language
+
+    tokens = language.tokenize_batch(["avoid the red door", "no blue door and no lava",
+                                      "avoid the red door"])  # fmt: skip
+    masks = breakdown.groups(tokens, np.array([3, 2, 3]))
+    assert masks["colour red"].tolist() == [True, False, True]
+    assert masks["colour blue"].tolist() == [False, True, False]
+    assert masks["template 3: avoid the red door"].tolist() == [True, False, True]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [([], "no run.json"), (["--run", "/nonexistent"], "no run.json"),
+     (["--episodes", "0"], "episodes must be")],
+)
+def test_bad_input_is_named(argv, message, finished, capsys):
+    out, _ = finished
+    argv = argv if "--run" in argv or not argv else ["--run", str(out), *argv]
+    with pytest.raises(SystemExit) as e:
+        breakdown.main(argv)
+    assert e.value.code == 2
+    assert message in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------- non-finite guard
