@@ -117,6 +117,7 @@ class PPOConfig:
     # a GRU memory in the policy, carried through each episode; updates then take minibatches
     # of whole env sequences and backpropagate through time (PureJaxRL's ppo_rnn)
     recurrent: bool = False
+    cell_dim: int = 8  # features per view cell, which the sentence scales and shifts (FiLM)
 
     def __post_init__(self):
         try:  # a dict or pairs -> sorted pairs, so that the config stays hashable
@@ -170,6 +171,9 @@ class PPOConfig:
                 f"PPOConfig.conv_channels must be a tuple of positive ints, got {convs!r}"
             )
         object.__setattr__(self, "conv_channels", tuple(int(c) for c in convs))
+        if isinstance(self.cell_dim, bool) or not isinstance(self.cell_dim, int | np.integer) \
+                or self.cell_dim < 1:
+            raise ValueError(f"PPOConfig.cell_dim must be a positive int, got {self.cell_dim!r}")
         if self.reward_mode not in REWARD_MODES:
             raise ValueError(
                 f"PPOConfig.reward_mode must be one of {REWARD_MODES}, got {self.reward_mode!r}"

@@ -446,6 +446,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
         network=ActorCritic(
             num_actions=env.num_actions,
             conv_channels=config.conv_channels,
+            cell_dim=config.cell_dim,
             vocab_size=getattr(env, "language", language).vocab_size(),
             recurrent=config.recurrent,
         ),

@@ -99,6 +99,16 @@ def test_mlp_view_encoder_option():
     assert np.isfinite(float(metrics["loss"])) and int(runner.update) == 1
 
 
+def test_cell_dim_sets_the_width_the_sentence_modulates():
+    """``cell_dim`` is the width of every view cell's features and of the sentence's FiLM
+    over them; the default is the network's own."""
+    assert make_learner(TINY).network.cell_dim == TINY.cell_dim == 8
+    learner = make_learner(dataclasses.replace(TINY, cell_dim=16))
+    params = jax.eval_shape(learner.init, jax.random.PRNGKey(0)).params["params"]
+    assert params["cells"]["kernel"].shape[-1] == 16
+    assert params["lang_proj"]["kernel"].shape[-1] == learner.network.lang_dim == 2 * 16 + 2 * 64
+
+
 def test_sentence_encoders_skip_the_pad_tail():
     """The policy's sentence features run the GRU over the table's longest sentence only,
     with the same bits as over every padded token."""
