@@ -171,9 +171,9 @@ class PPOConfig:
                 f"PPOConfig.conv_channels must be a tuple of positive ints, got {convs!r}"
             )
         object.__setattr__(self, "conv_channels", tuple(int(c) for c in convs))
-        if isinstance(self.cell_dim, bool) or not isinstance(self.cell_dim, int | np.integer) \
-                or self.cell_dim < 1:
-            raise ValueError(f"PPOConfig.cell_dim must be a positive int, got {self.cell_dim!r}")
+        dim = self.cell_dim
+        if isinstance(dim, bool) or not isinstance(dim, int | np.integer) or dim < 1:
+            raise ValueError(f"PPOConfig.cell_dim must be a positive int, got {dim!r}")
         if self.reward_mode not in REWARD_MODES:
             raise ValueError(
                 f"PPOConfig.reward_mode must be one of {REWARD_MODES}, got {self.reward_mode!r}"

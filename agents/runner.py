@@ -711,7 +711,12 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
         raise ValueError(f"{out}: no run.json, so no run of agents.runner.run") from None
     except (ValueError, TypeError, KeyError) as e:
         raise ValueError(f"{out / 'run.json'}: damaged ({e})") from None
-    tuples = lambda x: tuple(map(tuples, x)) if isinstance(x, list) else x  # noqa: E731
+    if not (out / "checkpoints").is_dir():
+        raise ValueError(f"{out / 'checkpoints'}: no checkpoint")
+
+    def tuples(x):  # JSON lists back to the config's tuples
+        return tuple(map(tuples, x)) if isinstance(x, list) else x
+
     known = {f.name for f in dataclasses.fields(PPOConfig)}
     config = PPOConfig(**{k: tuples(v) for k, v in saved.items() if k in known})
     if _checker_sha256(checker) != info.get("checker_sha256"):
@@ -727,8 +732,6 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
     learner = make_learner(config, checker)
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
     abstract = jax.eval_shape(jax.vmap(learner.init), keys, hparams)
-    if not (out / "checkpoints").is_dir():
-        raise ValueError(f"{out / 'checkpoints'}: no checkpoint")
     manager = _checkpoint_manager(out / "checkpoints")
     chunks = _verified_step(manager, out, delete=False)
     state = _restore(manager, chunks, abstract, None)
