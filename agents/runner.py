@@ -638,7 +638,8 @@ def _verified_step(manager, out: Path, delete: bool = True) -> int:
         if recorded.get(str(step)) == _step_digests(manager, step):
             return int(step)
         print(f"{Path(manager.directory) / str(step)}: damaged or unverified checkpoint (its "
-              f"files differ from {path}); {'deleted, ' if delete else ''}using an older one",
+              f"files differ from {path}); "
+              f"{'deleted, resuming from' if delete else 'reading'} an older one",
               file=sys.stderr)  # fmt: skip
         if delete:
             manager.delete(step)
