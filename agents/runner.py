@@ -224,11 +224,9 @@ def run(
     if max_chunks is not None and max_chunks < 0:
         raise ValueError(f"max_chunks must be >= 0 or None, got {max_chunks}")
     sweep = check_sweep(sweep, config)
-    grid = list(itertools.product(*sweep.values()))  # [()] without a sweep
-    swept = {n: [v[j] for v in grid for _ in seeds] for j, n in enumerate(sweep)}
-    idents = [(s, *v) for v in grid for s in seeds]  # one per agent
+    swept, idents = _agents(sweep, seeds)
     ident = functools.partial(_ident, names=tuple(sweep))
-    seeds = [s for _ in grid for s in seeds]  # the seed of each agent
+    seeds = [agent[0] for agent in idents]  # the seed of each agent
     programs = _programs(config, checker, multi_host, tuple(sweep))
     learner: Learner = programs.learner
     out = Path(out_dir) if out_dir is not None else None
@@ -542,6 +540,14 @@ def _check_run_info(
 
 
 # ----------------------------------------------------------------------------------------
+def _agents(sweep: Mapping[str, Sequence[float]], seeds: list[int]) -> tuple[dict, list]:
+    """The agents of a run, ordered by swept values (the first name outermost), then seed:
+    ``({name: value per agent}, [(seed, *values) per agent])``."""
+    grid = list(itertools.product(*sweep.values()))  # [()] without a sweep
+    swept = {n: [v[j] for v in grid for _ in seeds] for j, n in enumerate(sweep)}
+    return swept, [(s, *v) for v in grid for s in seeds]
+
+
 def _ident(record: dict, names: tuple = ()) -> tuple:
     """The agent a record belongs to: its seed and swept values."""
     return (record["seed"], *(record[n] for n in names))
@@ -725,11 +731,10 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
                          f"{'another checker' if info.get('checker_sha256') else 'no checker'}"
                          f"{'' if checker is not None else ' (pass its checker)'}")  # fmt: skip
     sweep = check_sweep(info.get("sweep"), config)
-    seeds = [int(s) for s in info["seeds"]]  # one per agent: the grid's, seed by seed
-    grid = list(itertools.product(*sweep.values()))
-    per_value = len(seeds) // len(grid)
-    hparams = {n: jnp.asarray([v[j] for v in grid for _ in range(per_value)], jnp.float32)
-               for j, n in enumerate(sweep)}  # fmt: skip
+    seeds = [int(s) for s in info["seeds"]]  # one per agent, as run() records them
+    per_value = len(seeds) // len(list(itertools.product(*sweep.values())))
+    swept, _ = _agents(sweep, seeds[:per_value])
+    hparams = {n: jnp.asarray(v, jnp.float32) for n, v in swept.items()}
     learner = make_learner(config, checker)
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
     abstract = jax.eval_shape(jax.vmap(learner.init), keys, hparams)
