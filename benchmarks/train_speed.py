@@ -120,6 +120,7 @@ def make_config(mode: str, sizes: dict, updates: int):
         update_epochs=sizes["epochs"],
         num_minibatches=sizes["minibatches"],
         **({"conv_channels": ()} if sizes.get("mlp") else {}),
+        **({"cell_dim": sizes["cell_dim"]} if sizes.get("cell_dim") else {}),
         # The LR schedule anneals over the timed updates; eval_every=1 allows tiny runs.
         total_timesteps=updates * sizes["num_envs"] * sizes["num_steps"],
         eval_every=1,
@@ -383,6 +384,8 @@ def _parser() -> argparse.ArgumentParser:
                    "(profiler trace; 0: off)")
     p.add_argument("--mlp", action="store_true", default=False,
                    help="time the policy without its convolution (PPOConfig.conv_channels=())")
+    p.add_argument("--cell-dim", type=int, default=None, metavar="N",
+                   help="features per view cell (PPOConfig.cell_dim; default: its default)")
     p.add_argument("--out", default=None, help="also write the JSON lines to this file")
     return p  # fmt: skip
 
@@ -395,6 +398,8 @@ def parse_args(argv=None) -> argparse.Namespace:
             p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if args.ops < 0:
         p.error(f"--ops must be >= 0, got {args.ops}")
+    if args.cell_dim is not None and args.cell_dim < 1:
+        p.error(f"--cell-dim must be >= 1, got {args.cell_dim}")
     if args.num_envs % args.minibatches:
         p.error(f"--minibatches ({args.minibatches}) must divide --num-envs ({args.num_envs})")
     import jaxgrid
@@ -414,6 +419,7 @@ def main(argv=None) -> list[dict[str, Any]]:
     sizes = {
         "env": args.env, "num_envs": args.num_envs, "num_steps": args.num_steps,
         "epochs": args.epochs, "minibatches": args.minibatches, "mlp": args.mlp,
+        "cell_dim": args.cell_dim,
     }  # fmt: skip
     batch = args.num_envs * args.num_steps
     updates = max(1, args.timesteps // batch // args.repeats)
