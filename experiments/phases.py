@@ -70,6 +70,8 @@ def prepare_out(cfg) -> Path:
 
     A directory that already holds ``config.json`` of another configuration is refused
     (mixing two runs' artefacts would be silently wrong); the same configuration resumes.
+    The modes compared may differ: each mode's agents live in their own directory, which
+    checks its own configuration, so a run can be extended by modes or reported on fewer.
     """
     out = Path(cfg.out)
     try:
@@ -79,7 +81,8 @@ def prepare_out(cfg) -> Path:
         probe.unlink()
     except OSError as e:
         raise ValueError(f"--out {cfg.out}: not writable ({e.strerror or e})") from None
-    mine = {k: v for k, v in _flat(_config_dict(cfg)).items() if k not in ("progress", "out")}
+    free = ("progress", "out", "modes")
+    mine = {k: v for k, v in _flat(_config_dict(cfg)).items() if k not in free}
     path = out / "config.json"
     if path.exists():
         try:
@@ -87,7 +90,7 @@ def prepare_out(cfg) -> Path:
         except ValueError as e:
             raise ValueError(f"{e}: it records the configuration of the run in --out "
                              f"{cfg.out}; delete it to resume with these flags") from None
-        theirs = {k: v for k, v in _flat(saved).items() if k not in ("progress", "out")}
+        theirs = {k: v for k, v in _flat(saved).items() if k not in free}
         diff = sorted(
             k for k in mine.keys() | theirs.keys()
             if mine.get(k) != theirs.get(k)
