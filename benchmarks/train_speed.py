@@ -43,6 +43,8 @@ steps per update.
 ``--ops N`` adds ``ops``: the timed executable run twice under ``jax.profiler``, and the
 ``N`` XLA kernels and the ``N`` places (pass and Flax module, e.g. ``backward:
 ActorCritic/cells``) that took the most of it, in ms per update (:mod:`benchmarks.xla_ops`).
+``--mlp`` and ``--cell-dim N`` time other sizes of the policy (no convolution; N features
+per view cell).
 
 Progress goes to stderr; stdout has the JSON lines only. Quote the ratios, not the absolute
 numbers, and mind the load (``load_avg_1m_at_start``): another process on the machine slows
