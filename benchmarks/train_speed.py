@@ -488,6 +488,7 @@ def main(argv=None) -> list[dict[str, Any]]:
             "epochs": args.epochs,
             "minibatches": args.minibatches,
             "network": "mlp" if args.mlp else "conv",
+            "cell_dim": ours.config.cell_dim,
             "timesteps": timed,
             "repeats": args.repeats,
             "updates_per_call": updates,

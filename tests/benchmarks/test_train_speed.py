@@ -9,6 +9,7 @@ import math
 
 import pytest
 
+from agents.config import PPOConfig
 from benchmarks import train_speed
 
 TINY = [
@@ -68,6 +69,12 @@ def test_mlp_flag_times_the_policy_without_convolution(monkeypatch):
     assert built and all(c.conv_channels == () for c in built)
 
 
+def test_cell_dim_reaches_the_timed_config():
+    sizes = {"env": "TwoRooms-v0", "num_envs": 8, "num_steps": 4, "epochs": 1, "minibatches": 2}
+    assert train_speed.make_config("none", sizes, 1).cell_dim == PPOConfig().cell_dim
+    assert train_speed.make_config("none", {**sizes, "cell_dim": 32}, 1).cell_dim == 32
+
+
 @pytest.mark.parametrize(
     "argv",
     [
@@ -76,6 +83,7 @@ def test_mlp_flag_times_the_policy_without_convolution(monkeypatch):
         ["--num-envs", "6", "--minibatches", "4"],
         ["--repeats", "-1"],
         ["--ops", "-2"],
+        ["--cell-dim", "0"],
         ["--timesteps", "many"],
         ["--env", "NoSuchEnv-v0"],
     ],
