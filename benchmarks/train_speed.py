@@ -386,8 +386,8 @@ def _parser() -> argparse.ArgumentParser:
                    "(profiler trace; 0: off)")
     p.add_argument("--mlp", action="store_true", default=False,
                    help="time the policy without its convolution (PPOConfig.conv_channels=())")
-    p.add_argument("--cell-dim", type=int, default=None, metavar="N",
-                   help="features per view cell (PPOConfig.cell_dim; default: its default)")
+    p.add_argument("--cell-dim", type=int, default=PPOConfig().cell_dim, metavar="N",
+                   help="features per view cell (PPOConfig.cell_dim)")
     p.add_argument("--out", default=None, help="also write the JSON lines to this file")
     return p  # fmt: skip
 
@@ -400,7 +400,7 @@ def parse_args(argv=None) -> argparse.Namespace:
             p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if args.ops < 0:
         p.error(f"--ops must be >= 0, got {args.ops}")
-    if args.cell_dim is not None and args.cell_dim < 1:
+    if args.cell_dim < 1:
         p.error(f"--cell-dim must be >= 1, got {args.cell_dim}")
     if args.num_envs % args.minibatches:
         p.error(f"--minibatches ({args.minibatches}) must divide --num-envs ({args.num_envs})")
