@@ -328,7 +328,7 @@ def _sizes_of(c) -> dict:
     return {
         "env": c.env_id, "num_envs": c.num_envs, "num_steps": c.num_steps,
         "epochs": c.update_epochs, "minibatches": c.num_minibatches,
-        "mlp": c.conv_channels == (),
+        "mlp": c.conv_channels == (), "cell_dim": c.cell_dim,
     }  # fmt: skip
 
 

@@ -72,7 +72,10 @@ def test_mlp_flag_times_the_policy_without_convolution(monkeypatch):
 def test_cell_dim_reaches_the_timed_config():
     sizes = {"env": "TwoRooms-v0", "num_envs": 8, "num_steps": 4, "epochs": 1, "minibatches": 2}
     assert train_speed.make_config("none", sizes, 1).cell_dim == PPOConfig().cell_dim
-    assert train_speed.make_config("none", {**sizes, "cell_dim": 32}, 1).cell_dim == 32
+    wide = train_speed.make_config("checker", {**sizes, "cell_dim": 32}, 1)
+    assert wide.cell_dim == 32
+    # --profile's checker-free reference is built from the timed config's sizes
+    assert train_speed.make_config("none", train_speed._sizes_of(wide), 1).cell_dim == 32
 
 
 @pytest.mark.parametrize(
