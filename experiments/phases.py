@@ -72,6 +72,7 @@ def prepare_out(cfg) -> Path:
     (mixing two runs' artefacts would be silently wrong); the same configuration resumes.
     The modes compared may differ: each mode's agents live in their own directory, which
     checks its own configuration, so a run can be extended by modes or reported on fewer.
+    Settings that change no artefact (progress bars, the closing baseline timing) may differ.
     """
     out = Path(cfg.out)
     try:
@@ -81,7 +82,7 @@ def prepare_out(cfg) -> Path:
         probe.unlink()
     except OSError as e:
         raise ValueError(f"--out {cfg.out}: not writable ({e.strerror or e})") from None
-    free = ("progress", "out", "modes")
+    free = ("progress", "out", "modes", "machine_baseline")
     mine = {k: v for k, v in _flat(_config_dict(cfg)).items() if k not in free}
     path = out / "config.json"
     if path.exists():

@@ -249,11 +249,12 @@ def test_out_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
 
 
 def test_out_extends_with_more_modes(tmp_path):
-    """Another set of modes is the same run (each mode checks its own directory); another
-    number of seeds is not."""
+    """Another set of modes is the same run (each mode checks its own directory), and so is
+    one without the closing baseline timing; another number of seeds is not."""
     argv = ["--quick", "--no-progress", "--out", str(tmp_path)]
     phases.prepare_out(pipeline.parse_args([*argv, "--modes", "checker"], two_rooms.SCENARIO))
-    more = pipeline.parse_args([*argv, "--modes", "checker,shaped,none"], two_rooms.SCENARIO)
+    more = pipeline.parse_args(
+        [*argv, "--modes", "checker,shaped,none", "--machine-baseline"], two_rooms.SCENARIO)
     phases.prepare_out(more)
     assert json.loads((tmp_path / "config.json").read_text())["modes"] == [
         "checker", "shaped", "none"]
