@@ -3,7 +3,7 @@
 HazardRooms episodes (every constraint type, drawn by the scenario) are played with biased
 random actions; every step's ``cost`` and ``violation`` must equal those of
 ``helpers.monitor_reference``, which judges the sentence's parsed meaning with Python loops.
-The default run checks about 10,000 steps per constraint type; ``-m slow`` 100,000.
+The default run checks about 3,000 steps per constraint type; ``-m slow`` 100,000.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def _compare(env, seed, n):
     return counted, steps
 
 
-@pytest.mark.parametrize("steps_per_type", [10_000, pytest.param(100_000, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("steps_per_type", [3_000, pytest.param(100_000, marks=pytest.mark.slow)])
 def test_monitor_matches_the_reference(steps_per_type):
     env = HazardRooms(width=13, height=13, max_steps=150)
     n = int(steps_per_type * len(HL.CONSTRAINT_TYPES) / env.max_steps * 1.3)
