@@ -88,13 +88,13 @@ def test_recurrent_training_and_evaluation_run():
 
 def test_acting_needs_memory_only_when_recurrent():
     recurrent, memoryless = make_learner(RECURRENT), make_learner(TINY)
-    runner = memoryless.init(jax.random.PRNGKey(0))
-    obs = runner.env.obs
-    actions = memoryless.act(runner.params, obs, jax.random.PRNGKey(1))
+    runner = fast_jit(memoryless.init)(jax.random.PRNGKey(0))  # jitted: eager init is slower
+    obs, key = runner.env.obs, jax.random.PRNGKey(1)
+    actions = fast_jit(memoryless.act)(runner.params, obs, key)
     assert actions.shape == (TINY.num_envs,)
-    params = recurrent.init(jax.random.PRNGKey(0)).params
+    params = fast_jit(recurrent.init)(jax.random.PRNGKey(0)).params
     with pytest.raises(ValueError, match="memory"):
-        recurrent.act(params, obs, jax.random.PRNGKey(1))
+        fast_jit(recurrent.act)(params, obs, key)
     memory = start_memory(recurrent.network, TINY.num_envs)
-    actions, memory = recurrent.act(params, obs, jax.random.PRNGKey(1), memory=memory)
+    actions, memory = fast_jit(recurrent.act)(params, obs, key, memory=memory)
     assert memory.shape == (TINY.num_envs, recurrent.network.memory_dim)

@@ -93,14 +93,14 @@ def test_the_split_keeps_heldout_phrases_out_of_training():
 
 def test_lava_costs_but_does_not_kill():
     env = HazardRooms(width=13, height=13, max_steps=150, sentences=("avoid lava",))
-    state, _ = env.reset(jax.random.key(0))
+    state, _ = jax.jit(env.reset)(jax.random.key(0))  # jitted: eager resets are slower
     front = state.agent_pos + jnp.array([[1, 0], [0, 1], [-1, 0], [0, -1]])[state.agent_dir]
     grid = state.grid.at[front[0], front[1]].set(jnp.array([LAVA, 0, 0], jnp.uint8))
     state = state.replace(grid=grid)
     state = state.replace(
         extras=state.extras.replace(monitor=M.start(state.extras.monitor.spec, grid))
     )
-    new, ts = env.step(state, jnp.int32(FORWARD))
+    new, ts = jax.jit(env.step)(state, jnp.int32(FORWARD))
     np.testing.assert_array_equal(new.agent_pos, front)
     assert not ts.terminated and bool(ts.info["violation"]) and float(ts.info["cost"]) == 1.0
 
@@ -111,7 +111,7 @@ def test_fixed_sentences_are_the_only_constraints():
         "never stand next to the red door and use the blue door at most once",
     )
     env = HazardRooms(width=13, height=13, max_steps=150, sentences=sentences)
-    _, ts = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), 64))
+    _, ts = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), 64))
     seen = {HL.detokenize(t) for t in np.asarray(ts.observation["constraint"])}
     assert seen == set(sentences)
 
