@@ -81,7 +81,7 @@ def run(cfg: BreakdownConfig) -> dict:
               "replaying its newest checkpoint")  # fmt: skip
     key = jax.random.PRNGKey(cfg.seed)
     reset_key, _ = jax.random.split(key)  # play_episodes draws its layouts from this key
-    _, ts = jax.vmap(learner.env.reset)(jax.random.split(reset_key, cfg.episodes))
+    _, ts = jax.jit(jax.vmap(learner.env.reset))(jax.random.split(reset_key, cfg.episodes))
     masks = groups(np.asarray(ts.observation["constraint"]), np.asarray(ts.info["template_id"]))
     play = jax.jit(lambda p, h: learner.evaluate(p, key, cfg.episodes,
                                                  shielded=not cfg.policy_alone, hparams=h))

@@ -40,7 +40,7 @@ def model_and_params():
     frames = _random_frames(jax.random.PRNGKey(0), 1, 4)
     starts = jnp.zeros((1, 4), bool)
     tokens = jnp.zeros((1, 4, SMALL.max_len), jnp.int32)
-    return model, model.init(jax.random.PRNGKey(1), frames, starts, tokens)
+    return model, jax.jit(model.init)(jax.random.PRNGKey(1), frames, starts, tokens)
 
 
 def test_memory_resets_at_starts_and_reaches_far_back(model_and_params):
@@ -218,9 +218,10 @@ def test_stream_steps_equal_the_checker_over_the_whole_stream():
     tokens = jnp.asarray(rng.integers(1, 20, (3, 9, SMALL.max_len)), jnp.int32)
     tokens = jnp.broadcast_to(tokens[:, :1], tokens.shape)  # one sentence per stream
     starts = jnp.zeros((3, 9), bool).at[:, 0].set(True)
-    whole = trained.logits(frames, starts, tokens)
-    emb, lang = trained.embed_states(frames), trained.encode_language(tokens)
-    memory = trained.stream_start(emb[:, 0], lang[:, 0])
+    whole = jax.jit(trained.logits)(frames, starts, tokens)  # jitted: eager is slower
+    emb, lang = jax.jit(trained.embed_states)(frames), jax.jit(trained.encode_language)(tokens)
+    memory = jax.jit(trained.stream_start)(emb[:, 0], lang[:, 0])
+    step = jax.jit(trained.stream_step)
     for t in range(1, 9):
-        logit, memory = trained.stream_step(memory, emb[:, t], lang[:, t])
+        logit, memory = step(memory, emb[:, t], lang[:, t])
         np.testing.assert_allclose(logit, whole[:, t], atol=1e-5)
