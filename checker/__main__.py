@@ -155,7 +155,8 @@ def _run(args: CheckerRun) -> dict:
     def windows(env_id, key, n, split="train"):
         env = jaxgrid.make(env_id, split=split)
         return collect(env, noisy_oracle_policy, policy, key, n, settings.window,
-                       settings.lookahead, args.num_envs, env_id=env_id)  # fmt: skip
+                       settings.lookahead, args.num_envs, env_id=env_id,
+                       final_windows=settings.final_windows)  # fmt: skip
 
     t0 = time.perf_counter()
     data = windows(args.env, k_data, samples)

@@ -37,6 +37,18 @@ truncation step) has no window and yields no positive, while with ``lookahead >=
 labels the windows before it as usual. Windows whose label horizon ``t+1..t+k`` runs past the
 end of the collected rollout are dropped (the last ``k`` positions of every env).
 
+Final windows
+-------------
+PPO's ``checker`` reward scores the window that ends at the observation a step returned,
+which on an episode's last step is its final observation (before the reset replaced it), and
+the shield scores the window that ends at each candidate observation, final or not. Neither
+is a window of the ring buffer, so with the labels above the checker never sees one: on
+TwoRooms-Lava, where lava ends the episode, it scored every step into lava as safe. With
+``final_windows=True`` (balanced collection only) the windows that end at each episode's final
+observation are drawn from too, labelled by the step that ended the episode (1 where it
+violated, whatever ``lookahead``): the window of the last frames of an episode and the
+observation it ended on, with that episode's sentence.
+
 Balancing
 ---------
 Violations are rare, so with ``balance=True`` the rollout goes on, in chunks of
@@ -309,6 +321,8 @@ def _record(state, ts, start, violation):
     c = state.extras.constraint
     return {
         "image": ts.observation["image"].astype(jnp.uint8),
+        # The observation the step ended on, before an auto-reset replaced it.
+        "final_image": ts.info["final_observation"]["image"].astype(jnp.uint8),
         "start": start,
         "violation": violation,
         "tokens": ts.observation["constraint"].astype(jnp.uint8),
@@ -339,9 +353,28 @@ def _rollout(env, policy_fn, policy_params, carry, key, *, num_steps):
     return carry, recs
 
 
-@functools.partial(jax.jit, static_argnames=("num_samples", "lookahead"))
-def _select_balanced(start, violation, key, *, num_samples, lookahead):
+def final_labels(start: jax.Array, violation: jax.Array):
+    """Labels and eligibility (bool ``(T, E)``) of the windows that end at an episode's final
+    observation: position ``i`` is eligible where a step ended an episode there (``start`` at
+    ``i > 0``), and its label is that step's violation."""
+    start = jnp.asarray(start, bool)
+    ended = start & (jnp.arange(start.shape[0]) > 0)[:, None]
+    return ended & jnp.asarray(violation, bool), ended
+
+
+def _all_labels(start, violation, lookahead, final_windows):
+    """The stream's labels and eligibility, with the final windows' rows after them."""
     labels, eligible = compute_labels(start, violation, lookahead)
+    if final_windows:
+        f_labels, f_eligible = final_labels(start, violation)
+        labels = jnp.concatenate([labels, f_labels])
+        eligible = jnp.concatenate([eligible, f_eligible])
+    return labels, eligible
+
+
+@functools.partial(jax.jit, static_argnames=("num_samples", "lookahead", "final_windows"))
+def _select_balanced(start, violation, key, *, num_samples, lookahead, final_windows=False):
+    labels, eligible = _all_labels(start, violation, lookahead, final_windows)
     flat_l, flat_e = labels.reshape(-1), eligible.reshape(-1)
     pos, neg = flat_e & flat_l, flat_e & ~flat_l
     n_pos_avail, n_neg_avail = jnp.sum(pos), jnp.sum(neg)
@@ -368,20 +401,27 @@ def _select_balanced(start, violation, key, *, num_samples, lookahead):
 
 
 @functools.partial(jax.jit, static_argnames=("num_slots", "window"))
-def _gather_windows(image, start, slot, *, num_slots, window):
-    """Replay the stream through :func:`push`, writing each position's window to its slot."""
-    t, e, v = image.shape[0], image.shape[1], image.shape[2]
+def _gather_windows(image, start, slot, final_image=None, final_slot=None, *, num_slots, window):
+    """Replay the stream through :func:`push`, writing each position's window to its slot
+    (and, with ``final_image``, the window that ends at each position's final observation
+    to its ``final_slot``)."""
+    e, v = image.shape[1], image.shape[2]
     out = jnp.zeros((num_slots, window, v, v, 3), jnp.uint8)
+    finals = final_image is not None
+    if not finals:  # placeholders that the loop ignores
+        final_image, final_slot = image, slot
 
     def body(carry, x):
         buf, out = carry
-        img, st, sl = x
+        img, st, sl, f_img, f_sl = x
+        if finals:  # the finished episode's frames, then the observation it ended on
+            out = out.at[f_sl].set(push(buf, f_img, jnp.zeros_like(st)), mode="drop")
         buf = push(buf, img, st)
         out = out.at[sl].set(buf, mode="drop")
         return (buf, out), None
 
-    (_, out), _ = lax.scan(body, (init_buffer(e, window, v), out), (image, start, slot))
-    del t
+    xs = (image, start, slot, final_image, final_slot)
+    (_, out), _ = lax.scan(body, (init_buffer(e, window, v), out), xs)
     return out
 
 
@@ -447,6 +487,7 @@ def collect(
     max_steps: int = 4096,
     chunk_steps: int = 64,
     env_id: str | None = None,
+    final_windows: bool = False,
 ) -> CheckerDataset:
     """Roll out ``policy_fn`` in ``num_envs`` auto-reset copies of ``env`` and label windows.
 
@@ -468,6 +509,8 @@ def collect(
         max_steps: cap on steps per env when ``num_steps`` is not given.
         chunk_steps: steps per compiled chunk when collecting until enough positives.
         env_id: recorded as ``meta["env_id"]`` and ``scenario`` (default: the env's class).
+        final_windows: also draw from the windows that end at an episode's final observation,
+            labelled by the step that ended it (see "Final windows"); ``balance=True`` only.
 
     Every argument is validated (``ValueError`` naming it) before anything is compiled.
     """
@@ -482,6 +525,11 @@ def collect(
         num_steps = _check_positive_int("num_steps", num_steps)
     elif not balance:
         raise ValueError("num_steps is required with balance=False (full episodes)")
+    if not isinstance(final_windows, bool):
+        raise ValueError(f"final_windows must be a bool, got {final_windows!r}")
+    if final_windows and not balance:
+        raise ValueError("final_windows needs balance=True (full episodes keep the stream's "
+                         "own windows only)")  # fmt: skip
     wrapped = _check_env(env)
     name = _env_name(env, env_id)
     split = getattr(wrapped.env, "split", None)
@@ -495,6 +543,8 @@ def collect(
         def enough(chunk):
             # Exact count of positives for k in {0, 1}, a lower bound for k > 1.
             new = chunk["violation"] & (~chunk["start"] if lookahead == 0 else True)
+            if final_windows:  # a violation that ends an episode also has its final window
+                new = new.astype(jnp.int32) + (chunk["violation"] & chunk["start"])
             found[0] += int(jnp.sum(new))
             return found[0] >= needed
 
@@ -503,7 +553,7 @@ def collect(
     )
     key_sel = jax.random.fold_in(key, 1)
     t_total = recs["start"].shape[0]
-    labels, eligible = compute_labels(recs["start"], recs["violation"], lookahead)
+    labels, eligible = _all_labels(recs["start"], recs["violation"], lookahead, final_windows)
     n_elig = int(jnp.sum(eligible))
     n_pos_elig = int(jnp.sum(labels & eligible))
     meta = {
@@ -519,6 +569,7 @@ def collect(
         "num_violations": int(jnp.sum(recs["violation"])),
         "eligible_windows": n_elig,
         "natural_positive_rate": n_pos_elig / max(n_elig, 1),
+        "final_windows": final_windows,
     }
 
     if balance:
@@ -528,6 +579,7 @@ def collect(
             key_sel,
             num_samples=num_samples,
             lookahead=lookahead,
+            final_windows=final_windows,
         )
         count = int(counts["num_positive"]) + int(counts["num_negative"])
     else:
@@ -537,10 +589,11 @@ def collect(
         slot = jnp.where(t_idx < keep, e_idx * keep + t_idx, num_envs * keep).astype(jnp.int32)
         count = num_envs * keep
     num_slots = num_samples if balance else count
+    finals = (recs["final_image"], slot[t_total:]) if final_windows else ()
     windows = _gather_windows(
-        recs["image"], recs["start"], slot, num_slots=num_slots, window=window
+        recs["image"], recs["start"], slot[:t_total], *finals, num_slots=num_slots, window=window
     )
-    # Which stream position went to each slot.
+    # Which stream position went to each slot (final windows: rows t_total.. of the labels).
     flat = slot.reshape(-1)
     pos_of_slot = (
         jnp.full((num_slots,), -1, jnp.int32)
@@ -549,15 +602,18 @@ def collect(
     )
     pos_of_slot = np.asarray(pos_of_slot[:count])
     t_sel, e_sel = pos_of_slot // num_envs, pos_of_slot % num_envs
-    host = jax.device_get({k: v for k, v in recs.items() if k != "image"})
+    # A final window belongs to the episode of the position before (the record at its own
+    # position is the next episode's first observation, with that episode's sentence).
+    t_src = np.where(t_sel >= t_total, t_sel - t_total - 1, t_sel)
+    host = jax.device_get({k: v for k, v in recs.items() if k not in ("image", "final_image")})
     labels_np = np.asarray(labels)
     windows = np.asarray(windows[:count])
     arrays = {
         "windows": windows,
-        "tokens": host["tokens"][t_sel, e_sel].astype(np.int32),
+        "tokens": host["tokens"][t_src, e_sel].astype(np.int32),
         "labels": labels_np[t_sel, e_sel].astype(np.uint8),
-        "template_id": host["template_id"][t_sel, e_sel].astype(np.int32),
-        "constraint_type": host["constraint_type"][t_sel, e_sel].astype(np.int32),
+        "template_id": host["template_id"][t_src, e_sel].astype(np.int32),
+        "constraint_type": host["constraint_type"][t_src, e_sel].astype(np.int32),
         "scenario": np.full((count,), name),
     }
     extras = {}
@@ -569,6 +625,10 @@ def collect(
     else:
         keep = t_total - lookahead
         extras = _episode_fields(host["start"], host["violation"], t_sel, e_sel, keep)
+    if final_windows:
+        is_final = t_sel >= t_total
+        meta["final_windows_drawn"] = int(np.sum(is_final))
+        meta["final_windows_positive"] = int(np.sum(labels_np[t_sel, e_sel] & is_final))
     ds = CheckerDataset(**arrays, extras=extras, meta=meta)
     ds.meta.update(
         num_samples=len(ds),

@@ -62,6 +62,11 @@ class CheckerTrainConfig:
     # over empty cells (checker.data.with_distractors), so the checker ignores objects no
     # constraint names; 0: none. Skipped, with a warning, above lookahead 1.
     distractors: float = 0.5
+    # Also train on the windows that end at an episode's final observation, labelled by the
+    # step that ended it (checker.data, "Final windows"): the checker reward and the shield
+    # score such windows, and where a violation ends the episode (lava) it is the only window
+    # that shows the step into it.
+    final_windows: bool = False
 
     def __post_init__(self):
         try:
@@ -74,6 +79,9 @@ class CheckerTrainConfig:
             if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < low:
                 raise ValueError(f"CheckerTrainConfig.{name} must be an integer >= {low}, "
                                  f"got {value!r}")  # fmt: skip
+        if not isinstance(self.final_windows, bool):
+            raise ValueError(f"CheckerTrainConfig.final_windows must be a bool, "
+                             f"got {self.final_windows!r}")  # fmt: skip
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if isinstance(value, float) and not math.isfinite(value):
@@ -202,6 +210,12 @@ def train_checker(
             f"train_checker: the dataset's window {dataset.window} and lookahead {lookahead} "
             f"differ from the settings' (CheckerTrainConfig.window={s.window}, "
             f"CheckerTrainConfig.lookahead={s.lookahead})"
+        )
+    if bool(dataset.meta.get("final_windows", False)) != s.final_windows:
+        raise ValueError(
+            f"train_checker: the dataset was collected with final_windows="
+            f"{bool(dataset.meta.get('final_windows', False))}, the settings say "
+            f"CheckerTrainConfig.final_windows={s.final_windows}"
         )
     model = CheckerConfig(window=s.window, view_size=v) if model is None else model
     if model.window != dataset.window or model.view_size != v:

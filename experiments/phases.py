@@ -17,6 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import checker as chk
@@ -28,6 +29,7 @@ from agents.runner import run as run_ppo
 from agents.train import make_learner
 from checker.trained import params_sha256
 from experiments import provenance, stats
+from jaxgrid.constants import NUM_ACTIONS
 from jaxgrid.io import holds_declared_default, read_json, to_jsonable, write_json, write_jsonl
 
 # Checker metrics copied into results.json (all rates).
@@ -134,13 +136,21 @@ def _evaluated(cfg, ppo: PPOConfig) -> PPOConfig:
 # ----------------------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class AgentPolicy:
-    """A trained agent as a :func:`checker.collect` policy (hashable: a static argument)."""
+    """A trained agent as a :func:`checker.collect` policy (hashable: a static argument);
+    with ``epsilon`` > 0 each action is uniformly random with that probability."""
 
     config: PPOConfig
+    epsilon: float = 0.0
 
     def __call__(self, params, obs, state, key):
         del state
-        return make_learner(self.config).act(params, obs, key)
+        if not self.epsilon:
+            return make_learner(self.config).act(params, obs, key)
+        key, k_explore, k_random = jax.random.split(key, 3)
+        action = make_learner(self.config).act(params, obs, key)
+        random = jax.random.randint(k_random, action.shape, 0, NUM_ACTIONS, action.dtype)
+        explore = jax.random.uniform(k_explore, action.shape) < self.epsilon
+        return jnp.where(explore, random, action)
 
 
 def behaviour_agent(cfg, out: Path):
@@ -165,10 +175,12 @@ def _collect(cfg, env_id: str, behaviour, key, samples: int, split: str = "train
         policy, params = chk.noisy_oracle_policy, chk.NoisyOracleParams(salt=cfg.seed)
     else:
         policy, params = behaviour
+        policy = dataclasses.replace(policy, epsilon=float(cfg.collect_epsilon))
     settings = cfg.checker_train
     return chk.collect(jaxgrid.make(env_id, split=split), policy, params, key, samples,
                        settings.window, settings.lookahead, env_id=env_id,
-                       max_steps=cfg.collect_max_steps)  # fmt: skip
+                       max_steps=cfg.collect_max_steps,
+                       final_windows=settings.final_windows)  # fmt: skip
 
 
 def _small_samples(cfg) -> int:

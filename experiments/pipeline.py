@@ -86,6 +86,10 @@ class ExperimentConfig:
     checker_samples: int = 12_000  # windows of checker data (phase b)
     # steps per env at most while collecting until half the windows are positives (phase b)
     collect_max_steps: int = 4096
+    # probability of a uniformly random action in place of the behaviour agent's, at each
+    # step of the collection (phase b): a trained agent seldom takes the rare steps (into
+    # lava) that the checker must learn to recognise
+    collect_epsilon: float = 0.0
     curve_points: int = 15  # evaluations: every max(1, updates // curve_points) updates
     final_episodes: int = 500  # final evaluation episodes per agent
     gif_episodes: int = 4  # episodes recorded in episodes.gif (0: none)
@@ -137,6 +141,9 @@ class ExperimentConfig:
             value, low = getattr(self, name), int(name in positive)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"{me}.{name} must be an integer >= {low}, got {value!r}")
+        eps = self.collect_epsilon
+        if isinstance(eps, bool) or not isinstance(eps, int | float) or not 0 <= eps <= 1:
+            raise ValueError(f"{me}.collect_epsilon must be a number in [0, 1], got {eps!r}")
         if self.sweep is not None:
             self.sweep_values  # noqa: B018 (validates)
         if self.out is not None and not self.out:
@@ -312,7 +319,7 @@ UNUSED_FLAGS: dict[str, cli.Names] = {
     "window": {MemoryTrainConfig: {f.name: None for f in dataclasses.fields(MemoryTrainConfig)}},
     "memory": {
         ExperimentConfig: {"behaviour_steps": None, "checker_samples": None,
-                           "collect_max_steps": None},
+                           "collect_max_steps": None, "collect_epsilon": None},
         CheckerTrainConfig: {f.name: None for f in dataclasses.fields(CheckerTrainConfig)},
     },
 }  # fmt: skip

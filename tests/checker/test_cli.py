@@ -84,7 +84,8 @@ def test_out_is_required(capsys):
 def test_train_config_names_the_field_it_rejects():
     for kwargs, field in [({"epochs": 0}, "epochs"), ({"window": 0}, "window"),
                           ({"threshold": 1.0}, "threshold"), ({"seed": -1}, "seed"),
-                          ({"val_fraction": 1.0}, "val_fraction")]:  # fmt: skip
+                          ({"val_fraction": 1.0}, "val_fraction"),
+                          ({"final_windows": 1}, "final_windows")]:  # fmt: skip
         with pytest.raises(ValueError, match=rf"CheckerTrainConfig\.{field}"):
             CheckerTrainConfig(**kwargs)
 
@@ -105,6 +106,9 @@ def test_train_checker_splits_as_its_config_says():
     assert history["epochs_run"] == 1 and trained.threshold == 0.4
     with pytest.raises(ValueError, match=r"CheckerTrainConfig\.window=5"):
         train_checker(data, CheckerTrainConfig(), model=TINY, progress=False)
+    with pytest.raises(ValueError, match=r"CheckerTrainConfig\.final_windows=True"):
+        train_checker(data, dataclasses.replace(settings, final_windows=True), model=TINY,
+                      progress=False)  # fmt: skip
 
 
 @pytest.mark.slow

@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections import Counter
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers.checker_cases import ENVS, SEEK, STEPS, expected_labels
@@ -17,6 +18,7 @@ from checker import CheckerDataset, NoisyOracleParams, noisy_oracle_policy
 from checker.data import compute_labels
 from jaxgrid import language
 from jaxgrid.constants import DOOR
+from jaxgrid.wrappers import AutoReset
 
 # ----------------------------------------------------------------------------------- labels
 
@@ -94,6 +96,71 @@ def test_collect_balanced(env):
     for tok, tid in zip(ds.tokens, ds.template_id, strict=True):  # tokens and template agree
         assert language.parse(language.detokenize(tok)).template_id == tid
     assert set(ds.scenario) == {"TwoRooms"}
+
+
+def _turn_or_walk(params, obs, state, key):
+    """Deterministic in observation and state: forward twice in three steps, else a turn."""
+    del params, key
+    mix = obs["image"].astype(jnp.int32).sum((1, 2, 3)) + 7 * state.step_count
+    return jnp.array([0, 1, 2, 2, 2])[mix % 5]
+
+
+def _expected_windows(env, key, num_envs, steps, window):
+    """Every window of the stream and every final window, replayed step by step with
+    ``AutoReset`` as (window bytes, label, tokens) counts; labels with lookahead 1."""
+    wrapped = AutoReset(env)
+    k_reset, _ = jax.random.split(key)
+    states, ts = jax.vmap(wrapped.reset)(jax.random.split(k_reset, num_envs))
+    step = jax.jit(jax.vmap(wrapped.step))
+    obs = [np.asarray(ts.observation["image"])]
+    tokens = [np.asarray(ts.observation["constraint"], np.uint8)]
+    finals, done, viol = [None], [np.ones(num_envs, bool)], [np.zeros(num_envs, bool)]
+    for _ in range(steps):
+        states, ts = step(states, _turn_or_walk(None, ts.observation, states, None))
+        obs.append(np.asarray(ts.observation["image"]))
+        tokens.append(np.asarray(ts.observation["constraint"], np.uint8))
+        finals.append(np.asarray(ts.info["final_observation"]["image"]))
+        done.append(np.asarray(ts.terminated | ts.truncated))
+        viol.append(np.asarray(ts.info["violation"], bool))
+    blank = np.zeros_like(obs[0][0])
+    expected, final_positives = Counter(), 0
+    for e in range(num_envs):
+        episode = []  # frames of the current episode so far
+        for t in range(steps + 1):
+            if t > 0 and done[t][e]:  # the finished episode's final window
+                frames = ([blank] * window + episode + [finals[t][e]])[-window:]
+                key_ = (np.stack(frames).tobytes(), int(viol[t][e]), tokens[t - 1][e].tobytes())
+                expected[key_] += 1
+                final_positives += int(viol[t][e])
+                episode = []
+            episode.append(obs[t][e])
+            if t < steps:  # lookahead 1: the last position's label is beyond the rollout
+                label = int(viol[t + 1][e])  # the step into t + 1 ends t's episode or not
+                frames = ([blank] * window + episode)[-window:]
+                expected[(np.stack(frames).tobytes(), label, tokens[t][e].tobytes())] += 1
+    return expected, final_positives
+
+
+def test_final_windows_are_the_finished_episodes_with_their_last_step():
+    """With final_windows, every window of the stream and every window that ends at an
+    episode's final observation (labelled by the step that ended it, with the finished
+    episode's sentence) is drawn, each once, when the samples asked for exceed them."""
+    env, key, num_envs, steps, window = jaxgrid.make("TwoRoomsLava-v0"), jax.random.key(3), 8, 48, 3
+    expected, final_positives = _expected_windows(env, key, num_envs, steps, window)
+    assert final_positives >= 2, "the walker should die in lava in this rollout"
+    ds = checker.collect(env, _turn_or_walk, None, key, 4 * num_envs * steps, window,
+                         lookahead=1, num_envs=num_envs, num_steps=steps,
+                         final_windows=True)  # fmt: skip
+    got = Counter((w.tobytes(), int(lab), tok.astype(np.uint8).tobytes())
+                  for w, lab, tok in zip(ds.windows, ds.labels, ds.tokens, strict=True))
+    assert got == expected
+    assert ds.meta["final_windows_positive"] == final_positives
+    without = checker.collect(env, _turn_or_walk, None, key, 4 * num_envs * steps, window,
+                              lookahead=1, num_envs=num_envs, num_steps=steps)  # fmt: skip
+    assert len(ds) - len(without) == ds.meta["final_windows_drawn"] > final_positives
+    with pytest.raises(ValueError, match="final_windows needs balance=True"):
+        checker.collect(env, _turn_or_walk, None, key, None, window, num_steps=steps,
+                        balance=False, final_windows=True)  # fmt: skip
 
 
 def test_dataset_save_load_split(tmp_path, episodes):

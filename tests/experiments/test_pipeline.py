@@ -187,6 +187,7 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
         (["--checker", "/nonexistent/checker"], "--checker /nonexistent/checker: no trained"),
         (["--lookahead", "99"], "--lookahead must be in [0, 4 * window]"),
         (["--novelty-bonus", "-1"], "--novelty-bonus must be >= 0"),
+        (["--collect-epsilon", "1.5"], "--collect-epsilon must be a number in [0, 1], got 1.5"),
         (["--ent-coef", "-0.5"], "--ent-coef must be >= 0"),
         (["--num-envs", "30"], "--num-envs (30) must be divisible by num_minibatches"),
         (["--checker-lr", "0"], "--checker-lr must be > 0"),
@@ -309,3 +310,26 @@ def test_three_rooms_key_quick_reuses_two_rooms_checker(two_rooms_run, tmp_path)
     assert on_disk["checker"]["transfer"] is not None  # TwoRooms checker on ThreeRoomsKey
     assert results["checker"]["test"] == on_disk["checker"]["test"]
     assert not (tmp_path / "behaviour").exists()  # the checker was reused, not rebuilt
+
+
+def test_collection_epsilon_mixes_uniform_actions_into_the_behaviour_agent():
+    """``AgentPolicy.epsilon``: 0 acts as the agent (the same program), 1 uniformly at
+    random over the 7 actions, whatever the agent prefers."""
+    import jax
+    import numpy as np
+
+    import jaxgrid
+    from agents.train import make_learner
+
+    config = PPOConfig(env_id="TwoRooms-v0", num_envs=8, num_steps=8, total_timesteps=64,
+                       eval_every=1)
+    params = make_learner(config).init(jax.random.key(0)).params
+    _, ts = jax.vmap(jaxgrid.make("TwoRooms-v0").reset)(jax.random.split(jax.random.key(1), 8))
+    obs = jax.tree.map(lambda x: np.repeat(np.asarray(x), 500, axis=0), ts.observation)
+    key = jax.random.key(2)
+    agent = phases.AgentPolicy(config)
+    np.testing.assert_array_equal(agent(params, obs, None, key),
+                                  dataclasses.replace(agent, epsilon=0.0)(params, obs, None, key))
+    uniform = dataclasses.replace(agent, epsilon=1.0)
+    counts = np.bincount(uniform(params, obs, None, key), minlength=7)
+    assert counts.sum() == 4000 and np.all(np.abs(counts / 4000 - 1 / 7) < 0.03), counts
