@@ -5,12 +5,13 @@
 The noisy BFS oracle of :mod:`checker.policies` plays every episode in ``seek`` mode (it
 heads through the forbidden door, or across forbidden lava, whenever one is on its way: do
 violations get through?) and then in ``obey`` mode (it plans around them: does the shield
-obstruct a safe agent?), with a random action 10% of the time. It plays alone and behind
-each judge: the
+obstruct a safe agent?), with a random action 10% of the time; then a uniformly random
+policy plays (what an agent at its first update does: does the shield keep it safe?). Each
+plays alone and behind each judge: the
 ground-truth monitor (:mod:`agents.shield`'s ``monitor``) and each trained checker given,
 e.g. one trained on just-before labels (lookahead 1) and one on "after" labels (lookahead 0).
 Where the shield blocks the oracle's action, a uniformly random allowed action is taken.
-For each oracle mode and judge it reports the episodes with a violation (%), the successes
+For each player and judge it reports the episodes with a violation (%), the successes
 (%) and the blocked actions per step, over the same fixed-seed episodes, and writes them as
 JSON.
 """
@@ -107,14 +108,15 @@ def run(cfg: JudgeConfig) -> dict:
         name = f"checker {path} (lookahead {trained.lookahead})"
         judges[name] = make_shield(env, "checker", trained, cfg.threshold)
     results: dict = {}
-    for mode, seek in (("seek", 1.0), ("obey", 0.0)):
-        params = chk.NoisyOracleParams(epsilon=cfg.epsilon, ignore_prob=0.0, seek_prob=seek,
+    players = (("seek", 1.0, cfg.epsilon), ("obey", 0.0, cfg.epsilon), ("random", 0.0, 1.0))
+    for mode, seek, epsilon in players:
+        params = chk.NoisyOracleParams(epsilon=epsilon, ignore_prob=0.0, seek_prob=seek,
                                        salt=cfg.seed)  # fmt: skip
         for name, shield in judges.items():
             go = jax.jit(lambda k, s=shield, p=params: play(env, s, p, k, cfg.episodes))
             r = {k: float(v) for k, v in go(key).items()}
             results.setdefault(mode, {})[name] = r
-            print(f"oracle {mode}, shield {name}: violations {100 * r['violation_rate']:.1f}%, "
+            print(f"{mode}, shield {name}: violations {100 * r['violation_rate']:.1f}%, "
                   f"success {100 * r['success_rate']:.1f}%, blocked "
                   f"{r['blocked_per_step']:.2f}/step")  # fmt: skip
     out = {"config": dataclasses.asdict(cfg), "oracle": results}

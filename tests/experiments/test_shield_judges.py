@@ -30,4 +30,9 @@ def test_monitor_shield_stops_the_seeking_oracle(tmp_path):
     seek, obey = out["oracle"]["seek"], out["oracle"]["obey"]
     assert seek["none"]["violation_rate"] > 0.3 and seek["monitor"]["violation_rate"] == 0.0
     assert obey["monitor"]["success_rate"] == obey["none"]["success_rate"]
+    assert out["oracle"]["random"]["monitor"]["violation_rate"] == 0.0
+    # A random policy walks into lava often (about 30% of episodes), never behind the monitor.
+    lava = shield_judges.main(["--env", "TwoRoomsLava-v0", "--episodes", "32"])["oracle"]
+    assert lava["random"]["none"]["violation_rate"] > 0.1
+    assert lava["random"]["monitor"]["violation_rate"] == 0.0
     assert (tmp_path / "j.json").is_file()
