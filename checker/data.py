@@ -407,20 +407,18 @@ def _gather_windows(image, start, slot, final_image=None, final_slot=None, *, nu
     to its ``final_slot``)."""
     e, v = image.shape[1], image.shape[2]
     out = jnp.zeros((num_slots, window, v, v, 3), jnp.uint8)
-    finals = final_image is not None
-    if not finals:  # placeholders that the loop ignores
-        final_image, final_slot = image, slot
 
     def body(carry, x):
         buf, out = carry
-        img, st, sl, f_img, f_sl = x
-        if finals:  # the finished episode's frames, then the observation it ended on
+        img, st, sl, *final = x
+        if final:  # the finished episode's frames, then the observation it ended on
+            f_img, f_sl = final
             out = out.at[f_sl].set(push(buf, f_img, jnp.zeros_like(st)), mode="drop")
         buf = push(buf, img, st)
         out = out.at[sl].set(buf, mode="drop")
         return (buf, out), None
 
-    xs = (image, start, slot, final_image, final_slot)
+    xs = (image, start, slot) + (() if final_image is None else (final_image, final_slot))
     (_, out), _ = lax.scan(body, (init_buffer(e, window, v), out), xs)
     return out
 

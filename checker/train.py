@@ -211,11 +211,11 @@ def train_checker(
             f"differ from the settings' (CheckerTrainConfig.window={s.window}, "
             f"CheckerTrainConfig.lookahead={s.lookahead})"
         )
-    if bool(dataset.meta.get("final_windows", False)) != s.final_windows:
+    final_windows = bool(dataset.meta.get("final_windows", False))
+    if final_windows != s.final_windows:
         raise ValueError(
-            f"train_checker: the dataset was collected with final_windows="
-            f"{bool(dataset.meta.get('final_windows', False))}, the settings say "
-            f"CheckerTrainConfig.final_windows={s.final_windows}"
+            f"train_checker: the dataset was collected with final_windows={final_windows}, "
+            f"the settings say CheckerTrainConfig.final_windows={s.final_windows}"
         )
     model = CheckerConfig(window=s.window, view_size=v) if model is None else model
     if model.window != dataset.window or model.view_size != v:
