@@ -34,7 +34,12 @@ from checker.metrics import (
     predict,
 )
 from checker.model import Checker, CheckerConfig
-from checker.policies import NoisyOracleParams, noisy_oracle_policy, random_policy
+from checker.policies import (
+    NoisyOracleParams,
+    noisy_oracle_policy,
+    random_policy,
+    with_random_actions,
+)
 from checker.reward import init_buffer, push, violation_prob
 from checker.train import CheckerTrainConfig, train_checker
 from checker.trained import TrainedChecker, load, save
@@ -66,5 +71,6 @@ __all__ = [
     "violation_prob",
     "with_colour_counterfactuals",
     "with_distractors",
+    "with_random_actions",
 ]
 

@@ -34,7 +34,7 @@ from flax import struct
 from jaxgrid.constants import DOOR, LOCKED, NUM_ACTIONS
 from jaxgrid.oracle import oracle_action
 
-__all__ = ["NoisyOracleParams", "noisy_oracle_policy", "random_policy"]
+__all__ = ["NoisyOracleParams", "noisy_oracle_policy", "random_policy", "with_random_actions"]
 
 
 def random_policy(policy_params, obs, state, key) -> jax.Array:
@@ -136,9 +136,16 @@ def _oracle_one(params: NoisyOracleParams, state, key):
             )
         )
         greedy = oracle_action(planned, obey_constraint=obey, avoid_lava=~(ignore | seek))
-    explore = jax.random.uniform(k_eps) < params.epsilon
-    random_action = jax.random.randint(k_act, (), 0, NUM_ACTIONS, dtype=jnp.int32)
-    return jnp.where(explore, random_action, greedy).astype(jnp.int32)
+    return with_random_actions(greedy, k_eps, k_act, params.epsilon)
+
+
+def with_random_actions(actions, explore_key, random_key, epsilon) -> jax.Array:
+    """int32 ``actions`` (any shape), each replaced with probability ``epsilon`` by a uniformly
+    random one of the ``NUM_ACTIONS``."""
+    explore = jax.random.uniform(explore_key, jnp.shape(actions)) < epsilon
+    random_action = jax.random.randint(random_key, jnp.shape(actions), 0, NUM_ACTIONS,
+                                       dtype=jnp.int32)  # fmt: skip
+    return jnp.where(explore, random_action, actions).astype(jnp.int32)
 
 
 def noisy_oracle_policy(policy_params: NoisyOracleParams, obs, state, key) -> jax.Array:

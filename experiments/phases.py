@@ -17,7 +17,6 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import checker as chk
@@ -29,7 +28,6 @@ from agents.runner import run as run_ppo
 from agents.train import make_learner
 from checker.trained import params_sha256
 from experiments import provenance, stats
-from jaxgrid.constants import NUM_ACTIONS
 from jaxgrid.io import holds_declared_default, read_json, to_jsonable, write_json, write_jsonl
 
 # Checker metrics copied into results.json (all rates).
@@ -148,9 +146,7 @@ class AgentPolicy:
             return make_learner(self.config).act(params, obs, key)
         key, k_explore, k_random = jax.random.split(key, 3)
         action = make_learner(self.config).act(params, obs, key)
-        random = jax.random.randint(k_random, action.shape, 0, NUM_ACTIONS, action.dtype)
-        explore = jax.random.uniform(k_explore, action.shape) < self.epsilon
-        return jnp.where(explore, random, action)
+        return chk.with_random_actions(action, k_explore, k_random, self.epsilon)
 
 
 def behaviour_agent(cfg, out: Path):
