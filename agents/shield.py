@@ -80,12 +80,7 @@ class Shield(struct.PyTreeNode):
         if self.judge == "monitor":
             return violation_of(ts).astype(jnp.float32)
         emb = self.checker.embed_states(ts.observation["image"])  # (E, A, D)
-        e, a = emb.shape[:2]
-        each = lambda x: jnp.repeat(x, a, axis=0)  # noqa: E731  (row e -> rows e*a .. e*a+a-1)
-        memory = jax.tree.map(each, frames)
-        logit, _ = self.checker.stream_step(memory, emb.reshape((e * a,) + emb.shape[2:]),
-                                            each(lang))  # fmt: skip
-        return jax.nn.sigmoid(logit).reshape(e, a)
+        return jax.nn.sigmoid(self.checker.candidate_logits(frames, emb, lang))
 
     def allowed(self, states, frames: jax.Array, lang: jax.Array):
         """``(allowed bool (E, A), risk (E, A))``: :func:`allow_least_risky` of :meth:`risk`."""

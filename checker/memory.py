@@ -196,6 +196,14 @@ class TrainedMemoryChecker(struct.PyTreeNode):
         """``(logit (E,), memory)`` after reading the frame embedded as ``emb``."""
         return self.module.apply(self.params, memory, emb, lang, method=MemoryChecker.advance)
 
+    def candidate_logits(self, memory: jax.Array, emb: jax.Array, lang: jax.Array):
+        """Logits ``(E, A)`` of :meth:`stream_step` for each of ``A`` candidate frames
+        embedded as ``emb`` (E, A, D), from one memory per env (what a shield asks)."""
+        e, a = emb.shape[:2]
+        each = lambda x: jnp.repeat(x, a, axis=0)  # noqa: E731  (row e -> rows e*a .. e*a+a-1)
+        flat = emb.reshape((e * a,) + emb.shape[2:])
+        return self.stream_step(each(memory), flat, each(lang))[0].reshape(e, a)
+
     def stream_start(self, emb: jax.Array, lang: jax.Array) -> jax.Array:
         """The memory of episodes whose first frames embed to ``emb``."""
         zeros = jnp.zeros((emb.shape[0], self.config.memory_dim), jnp.float32)

@@ -42,6 +42,7 @@ import dataclasses
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxgrid import language
 from jaxgrid.constants import COLOR_NAMES, OBJECT_NAMES, STATE_NAMES
@@ -158,6 +159,39 @@ class Checker(nn.Module):
         for layer in self.hidden:
             h = nn.relu(layer(h))
         return self.head(h)[..., 0].astype(jnp.float32)
+
+
+def candidate_logits(params, config: CheckerConfig, past, cand, lang) -> jax.Array:
+    """Logits ``(E, A)`` of the windows ``past`` + each candidate frame, as
+    :meth:`Checker.classify` of ``concatenate([past, cand[:, a:a+1]], 1)`` gives them.
+
+    ``past`` (E, n - 1, state_dim) are the window's older frame codes, shared by an env's
+    ``A`` candidates ``cand`` (E, A, state_dim), ``lang`` (E, gru_dim) its sentence codes.
+    A candidate reaches only the last few outputs of the temporal convolution and their rows
+    of the first MLP layer, so everything else is computed once per env, not once per
+    candidate: a shield scores every action of every env on every step, and this is most of
+    its cost.
+    """
+    p, n = params["params"], config.window
+    k = config.temporal_kernel
+    low = (k - 1) // 2  # SAME padding's left side (lax's rule)
+    first = max(n - 1 - (k - 1 - low), 0)  # the first output a candidate reaches
+    # The candidate's contribution to outputs first..n-1: kernel tap n-1-i+low of output i.
+    taps = p["temporal_conv"]["kernel"][np.array([n - 1 - i + low for i in range(first, n)])]
+    module = Checker(config)
+    blank = jnp.concatenate([past, jnp.zeros_like(cand[:, :1])], axis=1)  # candidate: 0
+    base = module.apply(params, blank, method=lambda m, x: m.temporal_conv(x))  # (E, n, C)
+    reach = jnp.einsum("ead,mdc->eamc", cand, taps) + base[:, None, first:]
+    c = base.shape[-1]
+    w0 = p["mlp_0"]["kernel"]
+    shared = jnp.concatenate([nn.relu(base[:, :first]).reshape(base.shape[0], -1), lang], -1)
+    shared = shared @ jnp.concatenate([w0[: first * c], w0[n * c :]]) + p["mlp_0"]["bias"]
+    h = nn.relu(nn.relu(reach).reshape(reach.shape[:2] + (-1,)) @ w0[first * c : n * c]
+                + shared[:, None])  # fmt: skip
+    for i in range(1, config.mlp_layers):
+        layer = p[f"mlp_{i}"]
+        h = nn.relu(h @ layer["kernel"] + layer["bias"])
+    return (h @ p["head"]["kernel"] + p["head"]["bias"])[..., 0].astype(jnp.float32)
 
 
 def embed_cells(x: jax.Array, objects: nn.Embed, colours: nn.Embed, states: nn.Embed):

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from flax import serialization, struct
 
-from checker.model import Checker, CheckerConfig, init_params, params_shape
+from checker.model import Checker, CheckerConfig, candidate_logits, init_params, params_shape
 from jaxgrid import language
 from jaxgrid.io import atomic_write, read_json, write_json
 from jaxgrid.rundir import sha256_bytes
@@ -80,6 +80,11 @@ class TrainedChecker(struct.PyTreeNode):
         embedded as ``emb``, and the memory with that frame in it."""
         window = jnp.concatenate([memory, emb[:, None]], axis=1)
         return self.classify(window, lang), window[:, 1:]
+
+    def candidate_logits(self, memory: jax.Array, emb: jax.Array, lang: jax.Array):
+        """Logits ``(E, A)`` of :meth:`stream_step` for each of ``A`` candidate frames
+        embedded as ``emb`` (E, A, D), from one memory per env (what a shield asks)."""
+        return candidate_logits(self.params, self.config, memory, emb, lang)
 
 
 def new_checker(

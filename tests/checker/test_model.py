@@ -11,7 +11,7 @@ from helpers.checker_cases import TINY
 from helpers.xla import CHEAP
 
 from checker import Checker, CheckerConfig
-from checker.model import init_params
+from checker.model import candidate_logits, init_params
 from jaxgrid.language import sentence_table
 
 # ------------------------------------------------------------------------------------ model
@@ -42,6 +42,42 @@ def test_model_shapes_jit_and_decomposition():
     )  # fmt: skip
     # Any leading shape for embed_states.
     assert apply(params, w[0, 0], method=Checker.embed_states).shape == (cfg.state_dim,)
+
+
+@pytest.mark.parametrize(
+    "window, kernel, layers",
+    [(5, 3, 2), (1, 3, 1), (2, 3, 2), (4, 2, 1), (3, 5, 2), (6, 1, 1), (2, 4, 3), (5, 4, 2)],
+)
+def test_candidate_logits_equal_the_classifier_on_each_window(window, kernel, layers):
+    """The shield's split computation (shared past once per env, each candidate's own
+    share after) gives the classifier's logit of every (past + candidate) window: windows
+    shorter than, as long as and longer than the temporal kernel, odd and even kernels."""
+    cfg = CheckerConfig(
+        window=window, temporal_kernel=kernel, mlp_layers=layers, gru_dim=16, state_dim=8,
+        temporal_channels=6, mlp_dim=12,
+    )  # fmt: skip
+    params = jax.jit(init_params, static_argnums=0, compiler_options=CHEAP)(
+        cfg, jax.random.key(window * 10 + kernel)
+    )
+    # Nonzero biases, so that a bias counted once too often (or not at all) shows.
+    params = jax.tree.map(lambda x: x + 0.3 * jax.random.normal(jax.random.key(3), x.shape),
+                          params)  # fmt: skip
+    e, a = 4, 7
+    k_past, k_cand, k_lang = jax.random.split(jax.random.key(1), 3)
+    past = jax.random.normal(k_past, (e, window - 1, cfg.state_dim))
+    cand = jax.random.normal(k_cand, (e, a, cfg.state_dim))
+    lang = jax.random.normal(k_lang, (e, cfg.gru_dim))
+    got = jax.jit(candidate_logits, static_argnums=1, compiler_options=CHEAP)(
+        params, cfg, past, cand, lang
+    )
+    windows = jnp.concatenate(
+        [jnp.broadcast_to(past[:, None], (e, a) + past.shape[1:]), cand[:, :, None]], axis=2
+    ).reshape((e * a, window, cfg.state_dim))
+    classify = jax.jit(Checker(cfg).apply, static_argnames="method", compiler_options=CHEAP)
+    want = classify(params, windows, jnp.repeat(lang, a, axis=0), method=Checker.classify)
+    assert got.shape == (e, a)
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want).reshape(e, a),
+                               rtol=1e-5, atol=1e-5)  # fmt: skip
 
 
 def test_config_rejects_bad_fields():
