@@ -118,6 +118,9 @@ class PPOConfig:
     # of whole env sequences and backpropagate through time (PureJaxRL's ppo_rnn)
     recurrent: bool = False
     cell_dim: int = 8  # features per view cell, which the sentence scales and shifts (FiLM)
+    # the sentence also scales each view cell's one-hot object, colour and state codes before
+    # they are embedded, so that it can weigh one colour against the others directly
+    film_codes: bool = False
 
     def __post_init__(self):
         try:  # a dict or pairs -> sorted pairs, so that the config stays hashable

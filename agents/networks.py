@@ -122,7 +122,10 @@ class ActorCritic(nn.Module):
     door* needs the product of "red" in the sentence and "red door ahead" in the view, which
     an additive merge expresses poorly; the per-cell modulation lets the sentence mark the
     forbidden door where it stands, before the convolution; without it agents learn to ignore
-    the sentence (``docs/decisions.md``).
+    the sentence (``docs/decisions.md``). With ``film_codes`` the sentence also weighs each
+    cell's one-hot object, colour and state codes before they are embedded, ``codes * (1 +
+    w)``: per-channel scales of 8 summed features can single out one colour only where the
+    embedding has set it apart, a weight per code can at once.
     The projection depends on the sentence only, so it is computed once per sentence of the
     table rather than once per sample.
 
@@ -138,6 +141,8 @@ class ActorCritic(nn.Module):
     gru_dim: int = 128
     vocab_size: int = language.vocab_size()
     recurrent: bool = False  # a GRU memory between the observation and the heads
+    # the sentence also scales each cell's one-hot object, colour and state codes
+    film_codes: bool = False
 
     def setup(self):
         relu_init = _ortho(np.sqrt(2))
@@ -158,7 +163,7 @@ class ActorCritic(nn.Module):
     @property
     def lang_dim(self) -> int:
         """Width of the ``lang`` input: FiLM scales and shifts per cell channel and hidden unit."""
-        return 2 * self.cell_dim + 2 * self.hidden
+        return 2 * self.cell_dim + 2 * self.hidden + (sum(_SIZES) if self.film_codes else 0)
 
     def encode_language(self, tokens: jax.Array) -> jax.Array:
         """(..., L) token ids -> (..., gru_dim) sentence features."""
@@ -189,9 +194,14 @@ class ActorCritic(nn.Module):
     def observe(self, image, direction, lang):
         """The sentence-modulated observation features (B, hidden): everything before the
         memory, so a recurrent update computes it for a whole sequence at once."""
-        cell_film, hidden_film = jnp.split(lang, [2 * self.cell_dim], axis=-1)
+        cell_film, hidden_film, code_film = jnp.split(
+            lang, [2 * self.cell_dim, 2 * self.cell_dim + 2 * self.hidden], axis=-1
+        )
         c_scale, c_shift = jnp.split(cell_film[..., None, None, :], 2, axis=-1)
-        x = nn.relu(self.cells(one_hot_cells(image)) * (1.0 + c_scale) + c_shift)
+        codes = one_hot_cells(image)
+        if self.film_codes:  # per sentence, a weight for every object, colour and state
+            codes = codes * (1.0 + code_film[..., None, None, :])
+        x = nn.relu(self.cells(codes) * (1.0 + c_scale) + c_shift)
         for conv in self.convs:
             x = nn.relu(conv(x))
         x = x.reshape(x.shape[:-3] + (-1,))

@@ -449,6 +449,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
             cell_dim=config.cell_dim,
             vocab_size=getattr(env, "language", language).vocab_size(),
             recurrent=config.recurrent,
+            film_codes=config.film_codes,
         ),
         optimizer=optimizer,
         checker=checker,

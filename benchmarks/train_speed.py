@@ -123,6 +123,7 @@ def make_config(mode: str, sizes: dict, updates: int):
         num_minibatches=sizes["minibatches"],
         **({"conv_channels": ()} if sizes.get("mlp") else {}),
         **({"cell_dim": sizes["cell_dim"]} if sizes.get("cell_dim") else {}),
+        film_codes=bool(sizes.get("film_codes")),
         # The LR schedule anneals over the timed updates; eval_every=1 allows tiny runs.
         total_timesteps=updates * sizes["num_envs"] * sizes["num_steps"],
         eval_every=1,
@@ -328,7 +329,7 @@ def _sizes_of(c) -> dict:
     return {
         "env": c.env_id, "num_envs": c.num_envs, "num_steps": c.num_steps,
         "epochs": c.update_epochs, "minibatches": c.num_minibatches,
-        "mlp": c.conv_channels == (), "cell_dim": c.cell_dim,
+        "mlp": c.conv_channels == (), "cell_dim": c.cell_dim, "film_codes": c.film_codes,
     }  # fmt: skip
 
 
@@ -388,6 +389,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="time the policy without its convolution (PPOConfig.conv_channels=())")
     p.add_argument("--cell-dim", type=int, default=PPOConfig().cell_dim, metavar="N",
                    help="features per view cell (PPOConfig.cell_dim)")
+    p.add_argument("--film-codes", action="store_true",
+                   help="the sentence also scales the cells' one-hot codes "
+                        "(PPOConfig.film_codes)")
     p.add_argument("--out", default=None, help="also write the JSON lines to this file")
     return p  # fmt: skip
 
@@ -421,7 +425,7 @@ def main(argv=None) -> list[dict[str, Any]]:
     sizes = {
         "env": args.env, "num_envs": args.num_envs, "num_steps": args.num_steps,
         "epochs": args.epochs, "minibatches": args.minibatches, "mlp": args.mlp,
-        "cell_dim": args.cell_dim,
+        "cell_dim": args.cell_dim, "film_codes": args.film_codes,
     }  # fmt: skip
     batch = args.num_envs * args.num_steps
     updates = max(1, args.timesteps // batch // args.repeats)
@@ -489,6 +493,7 @@ def main(argv=None) -> list[dict[str, Any]]:
             "minibatches": args.minibatches,
             "network": "mlp" if args.mlp else "conv",
             "cell_dim": ours.config.cell_dim,
+            "film_codes": ours.config.film_codes,
             "timesteps": timed,
             "repeats": args.repeats,
             "updates_per_call": updates,
