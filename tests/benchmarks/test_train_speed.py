@@ -117,7 +117,7 @@ def test_help_shows_every_default(capsys):
     with pytest.raises(SystemExit):
         train_speed.main(["--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert text.count("(default: ") == 15  # every flag but --help
+    assert text.count("(default: ") == 16  # every flag but --help
 
 
 @pytest.mark.slow  # baseline + profile compiles: 1-2 minutes on 2 shared cores
