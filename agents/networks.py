@@ -162,7 +162,8 @@ class ActorCritic(nn.Module):
 
     @property
     def lang_dim(self) -> int:
-        """Width of the ``lang`` input: FiLM scales and shifts per cell channel and hidden unit."""
+        """Width of the ``lang`` input: FiLM scales and shifts per cell channel and hidden unit,
+        then (``film_codes``) a weight per cell code."""
         return 2 * self.cell_dim + 2 * self.hidden + (sum(_SIZES) if self.film_codes else 0)
 
     def encode_language(self, tokens: jax.Array) -> jax.Array:
