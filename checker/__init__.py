@@ -20,6 +20,7 @@ from checker.data import (
     CheckerDataset,
     collect,
     collect_episodes,
+    with_blocked_counterfactuals,
     with_colour_counterfactuals,
     with_distractors,
 )
@@ -70,6 +71,7 @@ __all__ = [
     "save",
     "violation_prob",
     "with_colour_counterfactuals",
+    "with_blocked_counterfactuals",
     "with_distractors",
     "with_random_actions",
 ]

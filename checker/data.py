@@ -98,6 +98,7 @@ __all__ = [
     "collect_episodes",
     "compute_labels",
     "validate_window",
+    "with_blocked_counterfactuals",
     "with_colour_counterfactuals",
     "with_distractors",
 ]
@@ -105,6 +106,7 @@ __all__ = [
 FORMAT_VERSION = 1
 MAX_WINDOW = 64
 _CORE = ("windows", "tokens", "labels", "template_id", "constraint_type", "scenario")
+_PORTABLE = (KEY, BALL, BOX)  # no constraint names them
 EPISODE_FIELDS = (
     "env_index", "position", "episode", "step", "step_violation", "next_violation", "complete",
 )  # fmt: skip
@@ -769,10 +771,48 @@ def _append(dataset: CheckerDataset, extra: CheckerDataset, rng, counter: str) -
     return out
 
 
+def with_blocked_counterfactuals(
+    dataset: CheckerDataset, per_positive: int = 1, seed: int = 0
+) -> CheckerDataset:
+    """``dataset`` plus, for each positive, ``per_positive`` negatives whose way is blocked.
+
+    With lookahead 1 a positive window precedes a step that enters the cell in front of the
+    agent (a forbidden door, or lava): only moving forward enters a cell. The same window with
+    that cell of its last frame shown as a key, ball or box, of any colour, precedes no
+    violation, since nothing can step onto a portable object (which, like an open door, hides
+    nothing behind it, so the window is one the env can show). Rollouts on doors-only levels
+    never show an object in front of the agent where a forbidden door would be, and a checker
+    trained without such windows can take a key for the door (the measurement is in
+    ``docs/decisions.md``). ``meta["blocked_negatives"]`` counts the rows.
+    Raises ``ValueError`` for ``per_positive < 0``, a lookahead other than 1, or a dataset
+    with final windows (whose positives already entered the cell).
+    """
+    if not isinstance(per_positive, int | np.integer) or per_positive < 0:
+        raise ValueError(f"per_positive must be an int >= 0, got {per_positive!r}")
+    if dataset.meta.get("lookahead", 1) != 1:
+        raise ValueError(
+            f"blocked counterfactuals need lookahead 1, got {dataset.meta['lookahead']}"
+        )
+    if dataset.meta.get("final_windows", False):
+        raise ValueError("blocked counterfactuals need a dataset without final windows")
+    rows = np.repeat(np.flatnonzero(dataset.labels > 0), per_positive)
+    if len(rows) == 0:
+        return dataset
+    rng = np.random.default_rng(seed)
+    extra = dataset.subset(rows)
+    w = extra.windows.copy()  # (N, window, V, V, 3)
+    v = w.shape[2]
+    w[:, -1, v // 2, v - 2] = np.stack(
+        [rng.choice(_PORTABLE, len(rows)), rng.integers(0, len(COLOR_NAMES), len(rows)),
+         np.zeros(len(rows), int)], -1)  # fmt: skip
+    extra.windows = w.astype(dataset.windows.dtype)
+    extra.labels = np.zeros_like(extra.labels)
+    return _append(dataset, extra, rng, "blocked_negatives")
+
+
 # --------------------------------------------------------------------------------------
 # Distractor objects
 # --------------------------------------------------------------------------------------
-_PORTABLE = (KEY, BALL, BOX)  # no constraint names them
 
 
 def with_distractors(

@@ -29,6 +29,7 @@ import optax
 from checker.data import (
     CheckerDataset,
     validate_window,
+    with_blocked_counterfactuals,
     with_colour_counterfactuals,
     with_distractors,
 )
@@ -62,6 +63,11 @@ class CheckerTrainConfig:
     # over empty cells (checker.data.with_distractors), so the checker ignores objects no
     # constraint names; 0: none. Skipped, with a warning, above lookahead 1.
     distractors: float = 0.5
+    # Negatives added per positive with the cell in front shown as a key, ball or box
+    # (checker.data.with_blocked_counterfactuals), so the checker tells a door from an object
+    # of its colour; 0: none. Skipped, with a warning, unless lookahead is 1 and
+    # final_windows is off (labels would not be exact).
+    blocked: int = 0
     # Also train on the windows that end at an episode's final observation, labelled by the
     # step that ended it (checker.data, "Final windows"): the checker reward and the shield
     # score such windows, and where a violation ends the episode (lava) it is the only window
@@ -73,7 +79,8 @@ class CheckerTrainConfig:
             validate_window(self.window, self.lookahead)
         except ValueError as e:
             raise ValueError(f"CheckerTrainConfig.{e}") from None
-        minimum = {"epochs": 1, "batch_size": 1, "patience": 1, "seed": 0, "counterfactuals": 0}
+        minimum = {"epochs": 1, "batch_size": 1, "patience": 1, "seed": 0, "counterfactuals": 0,
+                   "blocked": 0}
         for name, low in minimum.items():
             value = getattr(self, name)
             if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < low:
@@ -232,17 +239,21 @@ def train_checker(
     val_fraction = s.val_fraction / (1 - s.test_fraction)  # of what the test split left
     if val_fraction > 0:
         train_ds, val_ds = trainval.split((1 - val_fraction, val_fraction), seed=s.seed)
-    # Both augmentations keep labels exact only up to lookahead 1 (see their docstrings).
-    for name, amount, augment, offset in (
-        ("colour counterfactuals", s.counterfactuals, with_colour_counterfactuals, 0),
-        ("distractors", s.distractors, with_distractors, 2),
-    ):
+    # Each augmentation keeps labels exact only where ``exact`` holds (see their docstrings).
+    for name, amount, augment, offset, exact, why in (
+        ("colour counterfactuals", s.counterfactuals, with_colour_counterfactuals, 0,
+         lookahead <= 1, f"lookahead {lookahead} > 1"),
+        ("distractors", s.distractors, with_distractors, 2,
+         lookahead <= 1, f"lookahead {lookahead} > 1"),
+        ("blocked counterfactuals", s.blocked, with_blocked_counterfactuals, 4,
+         lookahead == 1 and not final_windows, f"lookahead {lookahead}"
+         + (" and final windows" if final_windows else "")),
+    ):  # fmt: skip
         if not amount:
             continue
-        if lookahead > 1:
+        if not exact:
             warnings.warn(
-                f"train_checker: no {name} for lookahead {lookahead} > 1 "
-                "(the labels would not stay exact)",
+                f"train_checker: no {name} for {why} (the labels would not stay exact)",
                 stacklevel=2,
             )
             continue

@@ -1,5 +1,5 @@
 """checker.data: labels against an independent monitor of the same rollout, balanced collection,
-save/load and splits, label-preserving augmentations (colour counterfactuals, distractors), and
+save/load and splits, augmentations (colour counterfactuals, distractors, blocked fronts), and
 clear errors for bad collection arguments."""
 
 from __future__ import annotations
@@ -11,13 +11,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers.checker_cases import ENVS, SEEK, STEPS, expected_labels
+from helpers.xla import CHEAP
 
 import checker
 import jaxgrid
 from checker import CheckerDataset, NoisyOracleParams, noisy_oracle_policy
 from checker.data import compute_labels
 from jaxgrid import language
-from jaxgrid.constants import DOOR
+from jaxgrid.constants import BALL, BOX, DIR_TO_VEC, DOOR, KEY
 from jaxgrid.wrappers import AutoReset
 
 # ----------------------------------------------------------------------------------- labels
@@ -281,3 +282,71 @@ def test_distractors_only_touch_empty_cells_and_closed_doors(toy):
     train.meta["lookahead"] = 2
     with pytest.raises(ValueError, match="lookahead"):
         checker.with_distractors(train)
+
+
+def _states_before_violations(env, envs: int = 16, steps: int = 48):
+    """Pre-step states (batched) of a seek-mode oracle rollout whose next step violates."""
+    reset = jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)
+    step = jax.jit(jax.vmap(env.step), compiler_options=CHEAP)
+    policy = jax.jit(
+        lambda s, o: noisy_oracle_policy(SEEK, o, s, jax.random.PRNGKey(0)), compiler_options=CHEAP
+    )
+    states, ts = reset(jax.random.split(jax.random.PRNGKey(5), envs))
+    alive, found = np.ones(envs, bool), []
+    for _ in range(steps):
+        new, ts = step(states, policy(states, ts.observation))
+        hit = alive & np.asarray(ts.info["violation"], bool)
+        found += [jax.tree.map(lambda a, i=i: a[i], states) for i in np.flatnonzero(hit)]
+        alive &= ~np.asarray(ts.terminated | ts.truncated)
+        states = new
+    assert len(found) >= 4, "the seek-mode oracle should violate in this rollout"
+    return jax.tree.map(lambda *a: jnp.stack(a), *found)
+
+
+@pytest.mark.parametrize("env_id", ["TwoRooms-v0", "TwoRoomsLava-v0"])
+def test_blocked_counterfactual_windows_precede_no_violation(env_id):
+    """What with_blocked_counterfactuals writes is what the env shows with the cell in front
+    replaced, and from that state no action violates: the labels 0 are exact."""
+    env = jaxgrid.make(env_id)
+    states = _states_before_violations(env)
+    n, v = len(states.agent_pos), env.view_size
+    images = np.asarray(jax.jit(jax.vmap(env.observe), compiler_options=CHEAP)(states)["image"])
+    ds = CheckerDataset(
+        windows=images[:, None], tokens=np.zeros((n, language.MAX_LEN), np.int32),
+        labels=np.ones(n, np.uint8), template_id=np.zeros(n, np.int32),
+        constraint_type=np.ones(n, np.int32), scenario=np.array([env_id] * n),
+        meta={"lookahead": 1, "final_windows": False},
+    )  # fmt: skip
+    out = checker.with_blocked_counterfactuals(ds, per_positive=4, seed=0)
+    new = out.windows[out.labels == 0][:, 0]  # (4n, V, V, 3)
+    assert len(new) == 4 * n and out.meta["blocked_negatives"] == 4 * n
+    front = new[:, v // 2, v - 2]
+    # Each is one of the positives' images with only the front cell replaced.
+    src = np.array([np.flatnonzero(np.all(np.delete(images.reshape(n, -1, 3), (v // 2) * v + v - 2,
+                    1) == np.delete(w.reshape(-1, 3), (v // 2) * v + v - 2, 0), axis=(1, 2)))[0]
+                    for w in new])  # fmt: skip
+    assert np.all(np.isin(front[:, 0], (KEY, BALL, BOX))) and np.all(front[:, 2] == 0)
+    assert len(np.unique(front[:, 1])) > 1  # of any colour
+    # The same cell in each source state's grid; every action from there is safe.
+    fpos = np.asarray(states.agent_pos + jnp.asarray(DIR_TO_VEC)[states.agent_dir])[src]
+    grid = np.asarray(states.grid)[src]
+    grid[np.arange(len(src)), fpos[:, 0], fpos[:, 1]] = front
+    blocked = jax.tree.map(lambda a: a[src], states).replace(grid=jnp.asarray(grid))
+    shown = np.asarray(jax.jit(jax.vmap(env.observe), compiler_options=CHEAP)(blocked)["image"])
+    np.testing.assert_array_equal(shown, new)
+    every = jax.jit(jax.vmap(jax.vmap(env.step, (None, 0)), (0, None)), compiler_options=CHEAP)
+    _, ts = every(blocked, jnp.arange(7, dtype=jnp.int32))
+    assert not np.asarray(ts.info["violation"]).any()
+
+
+def test_blocked_counterfactuals_refuse_inexact_labels(toy):
+    train, _ = toy
+    for meta, match in (({"lookahead": 0}, "lookahead"), ({"lookahead": 2}, "lookahead"),
+                        ({"final_windows": True}, "final windows")):  # fmt: skip
+        bad = train.subset(np.arange(len(train)))
+        bad.meta.update(meta)
+        with pytest.raises(ValueError, match=match):
+            checker.with_blocked_counterfactuals(bad)
+    with pytest.raises(ValueError, match="per_positive"):
+        checker.with_blocked_counterfactuals(train, per_positive=-1)
+    assert len(checker.with_blocked_counterfactuals(train, per_positive=0)) == len(train)

@@ -1,10 +1,16 @@
-"""checker.train.train_checker: the tiny model separates a synthetic toy set."""
+"""checker.train.train_checker: the tiny model separates a synthetic toy set; augmentations
+that would make labels inexact are skipped."""
 
 from __future__ import annotations
 
 import json
 
+import numpy as np
+import pytest
+from helpers.checker_cases import TINY
+
 from checker.metrics import evaluate
+from checker.train import CheckerTrainConfig, train_checker
 
 # --------------------------------------------------------------------------------- training
 
@@ -16,3 +22,24 @@ def test_training_separates_toy_set(toy, trained_toy):
     assert m["auroc"] > 0.95, m
     assert history["best_epoch"] >= 1 and len(history["train_loss"]) == history["epochs_run"]
     json.dumps(m)  # plain JSON
+
+
+def test_blocked_counterfactuals_only_where_labels_stay_exact(toy):
+    """``blocked`` adds one negative per training positive, and is skipped with a warning on a
+    dataset with final windows, whose positives already entered the cell."""
+    train = toy[0].subset(np.arange(len(toy[0])))
+    base = dict(window=TINY.window, epochs=1, batch_size=64, test_fraction=0.0, val_fraction=0.0,
+                counterfactuals=0, distractors=0)  # fmt: skip
+    rows = {
+        b: train_checker(train, CheckerTrainConfig(**base, blocked=b), model=TINY,
+                         progress=False)[1]["train_rows"]
+        for b in (0, 1)
+    }  # fmt: skip
+    assert rows[1] - rows[0] == int(train.labels.sum()) > 0
+    train.meta["final_windows"] = True
+    settings = CheckerTrainConfig(**base, blocked=1, final_windows=True)
+    with pytest.warns(UserWarning, match="no blocked counterfactuals for lookahead 1 and final"):
+        history = train_checker(train, settings, model=TINY, progress=False)[1]
+    assert history["train_rows"] == rows[0]
+    with pytest.raises(ValueError, match="CheckerTrainConfig.blocked"):
+        CheckerTrainConfig(blocked=-1)
