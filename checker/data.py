@@ -89,6 +89,7 @@ from checker.trained import check_vocab
 from jaxgrid import language
 from jaxgrid.constants import BALL, BOX, CLOSED, COLOR_NAMES, DOOR, EMPTY, KEY, LOCKED
 from jaxgrid.io import atomic_write, read_json, write_json
+from jaxgrid.observation import see_behind, visibility_mask
 from jaxgrid.rundir import sha256_bytes, sha256_file
 from jaxgrid.wrappers import AutoReset
 
@@ -778,14 +779,15 @@ def with_blocked_counterfactuals(
 
     With lookahead 1 a positive window precedes a step that enters the cell in front of the
     agent (a forbidden door, or lava): only moving forward enters a cell. The same window with
-    that cell of its last frame shown as a key, ball or box, of any colour, precedes no
-    violation, since nothing can step onto a portable object (which, like an open door, hides
-    nothing behind it, so the window is one the env can show). Rollouts on doors-only levels
-    never show an object in front of the agent where a forbidden door would be, and a checker
-    trained without such windows can take a key for the door (the measurement is in
-    ``docs/decisions.md``). ``meta["blocked_negatives"]`` counts the rows.
-    Raises ``ValueError`` for ``per_positive < 0``, a lookahead other than 1, or a dataset
-    with final windows (whose positives already entered the cell).
+    that cell of its last frame shown as a key, ball or box, or as a locked door (half of the
+    rows each; any colour), precedes no violation: nothing steps onto a portable object, and
+    a locked door opens before it is entered. A locked door hides what is behind it, so the
+    frame's hidden cells are recomputed (MiniGrid's ``process_vis``); the window is one the
+    env can show. Doors-only rollouts never show a key or a locked door where a forbidden
+    door would be, and a checker trained without such windows can take either for the door
+    (the measurement is in ``docs/decisions.md``). ``meta["blocked_negatives"]`` counts the
+    rows. Raises ``ValueError`` for ``per_positive < 0``, a lookahead other than 1, or a
+    dataset with final windows (whose positives already entered the cell).
     """
     if not isinstance(per_positive, int | np.integer) or per_positive < 0:
         raise ValueError(f"per_positive must be an int >= 0, got {per_positive!r}")
@@ -799,12 +801,21 @@ def with_blocked_counterfactuals(
     if len(rows) == 0:
         return dataset
     rng = np.random.default_rng(seed)
+    n = len(rows)
     extra = dataset.subset(rows)
     w = extra.windows.copy()  # (N, window, V, V, 3)
     v = w.shape[2]
-    w[:, -1, v // 2, v - 2] = np.stack(
-        [rng.choice(_PORTABLE, len(rows)), rng.integers(0, len(COLOR_NAMES), len(rows)),
-         np.zeros(len(rows), int)], -1)  # fmt: skip
+    lock = rng.random(n) < 0.5
+    kind = np.where(lock, DOOR, rng.choice(_PORTABLE, n))
+    w[:, -1, v // 2, v - 2] = np.stack([kind, rng.integers(0, len(COLOR_NAMES), n),
+                                        np.where(lock, LOCKED, 0)], -1)  # fmt: skip
+    # Hidden cells (all zero) stay hidden and pass no light on; the agent's cell (which shows
+    # what it carries) is where light starts, whatever it holds.
+    last = w[:, -1]
+    clear = np.asarray(see_behind(last)) & (last[..., 0] != 0)
+    clear[:, v // 2, v - 1] = True
+    seen = np.asarray(jax.vmap(visibility_mask)(jnp.asarray(clear)))
+    w[:, -1] = np.where(seen[..., None], last, 0)
     extra.windows = w.astype(dataset.windows.dtype)
     extra.labels = np.zeros_like(extra.labels)
     return _append(dataset, extra, rng, "blocked_negatives")

@@ -18,7 +18,7 @@ import jaxgrid
 from checker import CheckerDataset, NoisyOracleParams, noisy_oracle_policy
 from checker.data import compute_labels
 from jaxgrid import language
-from jaxgrid.constants import BALL, BOX, DIR_TO_VEC, DOOR, KEY
+from jaxgrid.constants import BALL, BOX, DIR_TO_VEC, DOOR, KEY, LOCKED
 from jaxgrid.wrappers import AutoReset
 
 # ----------------------------------------------------------------------------------- labels
@@ -321,12 +321,17 @@ def test_blocked_counterfactual_windows_precede_no_violation(env_id):
     new = out.windows[out.labels == 0][:, 0]  # (4n, V, V, 3)
     assert len(new) == 4 * n and out.meta["blocked_negatives"] == 4 * n
     front = new[:, v // 2, v - 2]
-    # Each is one of the positives' images with only the front cell replaced.
-    src = np.array([np.flatnonzero(np.all(np.delete(images.reshape(n, -1, 3), (v // 2) * v + v - 2,
-                    1) == np.delete(w.reshape(-1, 3), (v // 2) * v + v - 2, 0), axis=(1, 2)))[0]
-                    for w in new])  # fmt: skip
-    assert np.all(np.isin(front[:, 0], (KEY, BALL, BOX))) and np.all(front[:, 2] == 0)
+    # Each is one of the positives' images with the front cell replaced and, behind a locked
+    # door, cells hidden: every other cell is as before or hidden.
+    same = (images[None] == new[:, None]).all(-1) | (new[:, None] == 0).all(-1)  # (4n, n, V, V)
+    same[:, :, v // 2, v - 2] = True
+    src = np.argmax(same.all((2, 3)), axis=1)
+    assert same.all((2, 3))[np.arange(len(new)), src].all()
+    portable = np.isin(front[:, 0], (KEY, BALL, BOX)) & (front[:, 2] == 0)
+    locked = (front[:, 0] == DOOR) & (front[:, 2] == LOCKED)
+    assert np.all(portable | locked) and portable.any() and locked.any()
     assert len(np.unique(front[:, 1])) > 1  # of any colour
+    assert (new[locked] == 0).all(-1).sum() > (images[src][locked] == 0).all(-1).sum()
     # The same cell in each source state's grid; every action from there is safe.
     fpos = np.asarray(states.agent_pos + jnp.asarray(DIR_TO_VEC)[states.agent_dir])[src]
     grid = np.asarray(states.grid)[src]
