@@ -43,6 +43,10 @@ class PPOConfig:
 
     With ``alarm_onset`` the ``checker`` and ``lagrangian`` signals count only the step that
     raises an alarm, not its repeats while it stays up (an ablation: ``docs/decisions.md``).
+    With ``alarm_forward`` an alarm is charged to the episode's next step, and only if that
+    step moves forward: the alarm says the next step may violate, and only moving forward
+    enters a cell. The step that raised the alarm (a turn towards a forbidden door, say) is
+    not charged, so an agent is not taught to stay away from what it may face.
 
     The penalty of ``shaped``, ``checker`` and the shields is 0 for the first
     ``penalty_start`` fraction of the updates (0 by default: the constraint acts from the
@@ -102,6 +106,9 @@ class PPOConfig:
     # checker, lagrangian: only the step that raises an alarm counts, not its repeats while
     # the alarm stays up (the ground truth counts a violation once, on entering)
     alarm_onset: bool = False
+    # checker, lagrangian: charge an alarm to the next step of the episode if it moves forward
+    # (the step the alarm predicts a violation of), not to the step that raised it
+    alarm_forward: bool = False
     cost_target: float = 0.05  # Lagrangian: alarms per episode to hold
     lagrangian_lr: float = 0.05  # Lagrangian: multiplier step size
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
@@ -180,6 +187,11 @@ class PPOConfig:
         if self.reward_mode not in REWARD_MODES:
             raise ValueError(
                 f"PPOConfig.reward_mode must be one of {REWARD_MODES}, got {self.reward_mode!r}"
+            )
+        if self.alarm_forward and (self.alarm_onset or self.soft_checker):
+            raise ValueError(
+                "PPOConfig.alarm_forward charges the previous step's alarm; it does not combine "
+                f"with alarm_onset={self.alarm_onset} or soft_checker={self.soft_checker}"
             )
         if self.batch_size % self.num_minibatches:
             raise ValueError(

@@ -23,7 +23,7 @@ from agents import shield as shield_mod
 from agents.config import PPOConfig
 from agents.evaluation import violation_of
 from jaxgrid import language
-from jaxgrid.constants import EMPTY
+from jaxgrid.constants import EMPTY, FORWARD
 from jaxgrid.wrappers import BatchedAutoReset, masked_map
 
 
@@ -124,7 +124,8 @@ def env_step(
     (the checker's GRU reads that many tokens). The training reward is the env reward minus
     ``penalty`` times the ground-truth violation (``shaped``) or the checker's alarm
     (``checker``; its probability with ``soft_checker``; with ``alarm_onset`` only where the
-    previous step of the episode did not alarm); ``lagrangian`` puts the alarm in the cost
+    previous step of the episode did not alarm; with ``alarm_forward`` the previous step's
+    alarm where this step moves forward); ``lagrangian`` puts the alarm in the cost
     instead. The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to
     the episode. With a ``shield`` (:class:`agents.shield.Shield`) the action is sampled from
     the policy restricted to the allowed actions, and the mask is kept in the transition.
@@ -164,6 +165,8 @@ def env_step(
     signal = prob if c.soft_checker else alarm
     if c.alarm_onset:  # only the step that raises an alarm, not its repeats while it stays
         signal = signal * ~carry.alarmed
+    if c.alarm_forward:  # the previous step's alarm, on a step that tries to enter a cell
+        signal = (carry.alarmed & (action == FORWARD)).astype(jnp.float32)
     cost = jnp.zeros_like(ts.reward)
     reward = ts.reward
     if c.reward_mode == "shaped":

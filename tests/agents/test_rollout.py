@@ -23,6 +23,7 @@ import checker.reward as creward
 from agents import rollout
 from agents.networks import ActorCritic
 from agents.train import make_learner
+from jaxgrid.constants import FORWARD
 from jaxgrid.wrappers import AutoReset, masked_map
 
 ROLL_STEPS = 10
@@ -264,3 +265,27 @@ def test_alarm_onset_penalises_only_the_step_that_raises_the_alarm(rollouts, tin
     expected = ref["reward"] - c.penalty * onset + bootstrap
     clear = np.abs(prob - threshold) > 1e-4
     np.testing.assert_allclose(tr.reward[clear], expected[clear], atol=1e-5)
+
+
+def test_alarm_forward_charges_the_next_forward_step(rollouts, tiny_checker):
+    """With ``alarm_forward`` a step is penalised iff the episode's previous step alarmed and
+    this one moves forward."""
+    runner0, out = rollouts
+    learner, _, _, ref = out["checker"]
+    prob = ref["prob"]
+    threshold = float(np.median(prob))
+    c = dataclasses.replace(learner.config, alarm_forward=True, checker_threshold=threshold)
+    tr, _ = step_by_step(make_learner(c, tiny_checker), runner0)
+    np.testing.assert_array_equal(tr.action, out["checker"][1].action)  # the same steps
+    alarm = prob > threshold
+    done = ref["terminated"] | ref["truncated"]
+    before = np.concatenate([np.zeros_like(alarm[:1]), (alarm & ~done)[:-1]])
+    charged = before & (tr.action == FORWARD)
+    assert charged.sum() >= 3 and (alarm & (tr.action != FORWARD)).sum() >= 3
+    bootstrap = c.gamma * (ref["truncated"] & ~ref["terminated"]) * ref["v_final"]
+    expected = ref["reward"] - c.penalty * charged + bootstrap
+    prev_prob = np.concatenate([np.full_like(prob[:1], 1.0), prob[:-1]])
+    clear = np.abs(prev_prob - threshold) > 1e-4
+    np.testing.assert_allclose(tr.reward[clear], expected[clear], atol=1e-5)
+    with pytest.raises(ValueError, match="alarm_forward"):
+        dataclasses.replace(c, alarm_onset=True)
