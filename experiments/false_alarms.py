@@ -1,0 +1,137 @@
+"""Where a checker alarms: a policy's windows on a scenario, split by the cell in front.
+
+``python -m experiments.false_alarms --checker DIR [--env-id ThreeRoomsKey-v0]
+[--policy random|oracle] [--out FILE.json]``
+
+A checker shapes an agent's reward wherever it alarms, so an alarm at something the agent
+must pass (a key, a locked door) teaches the agent to avoid it. The test set's AUROC does not
+show that: such windows are rare and never positive. Here every window of ``envs`` x
+``steps`` auto-reset rollouts is scored and labelled by the monitor (as in
+``checker.collect_episodes``), and the alarms are counted per kind of cell in front of the
+agent in the window's last frame (doors by state and by whether the sentence names their
+colour). ``oracle`` is the noisy oracle (``checker.noisy_oracle_policy``) in its mix of
+obeying and ignoring the constraint, which walks through doors; ``random`` rarely leaves
+the first room.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import checker as chk
+import jaxgrid
+from checker import cli
+from jaxgrid import language
+from jaxgrid.constants import COLOR_NAMES, DOOR, OBJECT_NAMES, STATE_NAMES
+from jaxgrid.io import write_json
+
+POLICIES = ("random", "oracle")
+
+
+@dataclasses.dataclass(frozen=True)
+class FalseAlarmConfig:
+    """Which checker, on which scenario, under which policy."""
+
+    checker: str = ""  # a trained checker's directory
+    env_id: str = "ThreeRoomsKey-v0"  # the scenario its windows come from
+    policy: str = "random"  # random | oracle (the noisy oracle, obeying or ignoring)
+    epsilon: float = 0.2  # oracle: probability of a random action per step
+    envs: int = 64  # rollouts side by side
+    steps: int = 2000  # steps per rollout
+    seed: int = 3  # seed of the rollouts
+    out: str | None = None  # JSON file for the counts; None: print only
+
+    def __post_init__(self):
+        me = type(self).__name__
+        if not self.checker or not (Path(self.checker) / "config.json").exists():
+            raise ValueError(f"{me}.checker {self.checker!r}: no trained checker there")
+        if self.env_id not in jaxgrid.registered_ids():
+            raise ValueError(f"{me}.env_id {self.env_id!r} is not a registered environment")
+        if self.policy not in POLICIES:
+            raise ValueError(f"{me}.policy must be one of {POLICIES}, got {self.policy!r}")
+        if not 0 <= self.epsilon <= 1:
+            raise ValueError(f"{me}.epsilon must be in [0, 1], got {self.epsilon!r}")
+        for name in ("envs", "steps"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{me}.{name} must be an integer >= 1, got {value!r}")
+
+
+def front_groups(front: np.ndarray, named: np.ndarray) -> np.ndarray:
+    """A label per window for the cell in front (uint8 ``(N, 3)``): the object's name; a door
+    with its state and ``named`` / ``other`` for whether the sentence names its colour
+    (``named``: ``(N,)`` colour indices, -1 where the sentence names none)."""
+    labels = []
+    for (kind, colour, state), n in zip(front.tolist(), named.tolist(), strict=True):
+        name = OBJECT_NAMES[kind]
+        if kind == DOOR:
+            name += f" {STATE_NAMES[state]} {'named' if colour == n else 'other'}"
+        labels.append(name)
+    return np.array(labels)
+
+
+def _named_colours(tokens: np.ndarray) -> np.ndarray:
+    """The colour index each sentence names (its first colour word), -1 for none."""
+    ids = {language.VOCAB.index(c): COLOR_NAMES.index(c) for c in language.COLOURS}
+    return np.array([next((ids[t] for t in row if t in ids), -1) for row in tokens.tolist()])
+
+
+def run(cfg: FalseAlarmConfig) -> dict:
+    trained = chk.load(cfg.checker)
+    if trained.kind != "window":
+        raise ValueError(f"{cfg.checker}: a {trained.kind} checker; this scores window checkers")
+    env = jaxgrid.make(cfg.env_id)
+    if cfg.policy == "random":
+        policy, params = chk.random_policy, None
+    else:
+        policy = chk.noisy_oracle_policy
+        params = chk.NoisyOracleParams(epsilon=cfg.epsilon, ignore_prob=0.5, seek_prob=0.0)
+    data = chk.collect(env, policy, params, jax.random.PRNGKey(cfg.seed), None,
+                       trained.config.window, trained.lookahead, cfg.envs, balance=False,
+                       num_steps=cfg.steps, env_id=cfg.env_id)  # fmt: skip
+    alarm = chk.predict(trained, data.windows, data.tokens) > trained.threshold
+    label = data.labels > 0
+    v = data.windows.shape[2]
+    group = front_groups(data.windows[:, -1, v // 2, v - 2], _named_colours(data.tokens))
+    rows = {}
+    for g in sorted(set(group.tolist())):
+        m = group == g
+        neg = m & ~label
+        rows[g] = {"windows": int(m.sum()), "positives": int((m & label).sum()),
+                   "false_alarms": int((neg & alarm).sum()),
+                   "false_alarm_rate": float((neg & alarm).sum() / max(neg.sum(), 1))}  # fmt: skip
+    total = {"windows": len(label), "positives": int(label.sum()), "alarms": int(alarm.sum()),
+             "true_alarms": int((alarm & label).sum()), "false_alarms": int((alarm & ~label).sum()),
+             "missed": int((~alarm & label).sum())}  # fmt: skip
+    out = {"config": dataclasses.asdict(cfg), "total": total, "front": rows}
+    _print(cfg, total, rows)
+    if cfg.out:
+        write_json(Path(cfg.out), out)
+    return out
+
+
+def _print(cfg: FalseAlarmConfig, total: dict, rows: dict) -> None:
+    print(f"{cfg.checker} on {cfg.env_id}, {cfg.policy} policy: {total['windows']} windows, "
+          f"{total['positives']} positive; {total['alarms']} alarms, {total['false_alarms']} "
+          f"false, {total['missed']} violations missed")  # fmt: skip
+    width = max(len(g) for g in [*rows, "in front"])
+    print(f"{'in front':<{width}}  {'windows':>8}  {'positive':>8}  {'false alarms':>12}  rate")
+    for g, r in sorted(rows.items(), key=lambda kv: -kv[1]["false_alarms"]):
+        print(f"{g:<{width}}  {r['windows']:>8}  {r['positives']:>8}  {r['false_alarms']:>12}  "
+              f"{100 * r['false_alarm_rate']:.2f}%")  # fmt: skip
+
+
+def main(argv=None) -> dict:
+    cfg = cli.parse(FalseAlarmConfig, argv, prog="python -m experiments.false_alarms",
+                    description=__doc__.split("\n\n")[0])  # fmt: skip
+    return run(cfg)
+
+
+if __name__ == "__main__":
+    main()
+
+__all__ = ["FalseAlarmConfig", "POLICIES", "front_groups", "main", "run"]
