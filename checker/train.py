@@ -63,9 +63,9 @@ class CheckerTrainConfig:
     # over empty cells (checker.data.with_distractors), so the checker ignores objects no
     # constraint names; 0: none. Skipped, with a warning, above lookahead 1.
     distractors: float = 0.5
-    # Negatives added per positive with the cell in front shown as a key, ball or box
-    # (checker.data.with_blocked_counterfactuals), so the checker tells a door from an object
-    # of its colour; 0: none. Skipped, with a warning, unless lookahead is 1 and
+    # Negatives added per positive with the cell in front shown as a key, ball, box or locked
+    # door (checker.data.with_blocked_counterfactuals), so the checker tells an open door from
+    # what cannot be entered; 0: none. Skipped, with a warning, unless lookahead is 1 and
     # final_windows is off (labels would not be exact).
     blocked: int = 0
     # Also train on the windows that end at an episode's final observation, labelled by the
