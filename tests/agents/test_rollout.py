@@ -247,45 +247,44 @@ def test_terminal_step_on_the_time_limit_is_not_bootstrapped():
     )
 
 
-def test_alarm_onset_penalises_only_the_step_that_raises_the_alarm(rollouts, tiny_checker):
+def _alarm_replay(rollouts, tiny_checker, **flags):
+    """The checker rollout again with ``flags`` and the threshold at the median probability
+    (about half the steps alarm): ``(config, transitions, ref, alarm, alarmed before)``, where
+    "before" means the episode's previous step alarmed (a fresh episode starts without one)."""
     runner0, out = rollouts
     learner, _, _, ref = out["checker"]
-    prob = ref["prob"]
-    threshold = float(np.median(prob))  # about half the steps alarm: repeats are sure
-    c = dataclasses.replace(learner.config, alarm_onset=True, checker_threshold=threshold)
+    threshold = float(np.median(ref["prob"]))
+    c = dataclasses.replace(learner.config, checker_threshold=threshold, **flags)
     tr, _ = step_by_step(make_learner(c, tiny_checker), runner0)
     np.testing.assert_array_equal(tr.action, out["checker"][1].action)  # the same steps
-    alarm = prob > threshold
+    alarm = ref["prob"] > threshold
     done = ref["terminated"] | ref["truncated"]
-    # The episode's previous step alarmed (a fresh episode starts without one).
     before = np.concatenate([np.zeros_like(alarm[:1]), (alarm & ~done)[:-1]])
-    onset = alarm & ~before
-    assert (alarm & before).sum() >= 5  # repeated alarms happen, and are not penalised
+    return c, tr, ref, alarm, before
+
+
+def _assert_charged(c, tr, ref, charged, prob):
+    """Rewards are the env's minus the penalty where ``charged``, plus the bootstrap; steps
+    whose deciding ``prob`` sits at the threshold are skipped (float noise decides them)."""
     bootstrap = c.gamma * (ref["truncated"] & ~ref["terminated"]) * ref["v_final"]
-    expected = ref["reward"] - c.penalty * onset + bootstrap
-    clear = np.abs(prob - threshold) > 1e-4
+    expected = ref["reward"] - c.penalty * charged + bootstrap
+    clear = np.abs(prob - c.checker_threshold) > 1e-4
     np.testing.assert_allclose(tr.reward[clear], expected[clear], atol=1e-5)
+
+
+def test_alarm_onset_penalises_only_the_step_that_raises_the_alarm(rollouts, tiny_checker):
+    c, tr, ref, alarm, before = _alarm_replay(rollouts, tiny_checker, alarm_onset=True)
+    assert (alarm & before).sum() >= 5  # repeated alarms happen, and are not penalised
+    _assert_charged(c, tr, ref, alarm & ~before, ref["prob"])
 
 
 def test_alarm_forward_charges_the_next_forward_step(rollouts, tiny_checker):
     """With ``alarm_forward`` a step is penalised iff the episode's previous step alarmed and
     this one moves forward."""
-    runner0, out = rollouts
-    learner, _, _, ref = out["checker"]
-    prob = ref["prob"]
-    threshold = float(np.median(prob))
-    c = dataclasses.replace(learner.config, alarm_forward=True, checker_threshold=threshold)
-    tr, _ = step_by_step(make_learner(c, tiny_checker), runner0)
-    np.testing.assert_array_equal(tr.action, out["checker"][1].action)  # the same steps
-    alarm = prob > threshold
-    done = ref["terminated"] | ref["truncated"]
-    before = np.concatenate([np.zeros_like(alarm[:1]), (alarm & ~done)[:-1]])
+    c, tr, ref, alarm, before = _alarm_replay(rollouts, tiny_checker, alarm_forward=True)
     charged = before & (tr.action == FORWARD)
     assert charged.sum() >= 3 and (alarm & (tr.action != FORWARD)).sum() >= 3
-    bootstrap = c.gamma * (ref["truncated"] & ~ref["terminated"]) * ref["v_final"]
-    expected = ref["reward"] - c.penalty * charged + bootstrap
-    prev_prob = np.concatenate([np.full_like(prob[:1], 1.0), prob[:-1]])
-    clear = np.abs(prev_prob - threshold) > 1e-4
-    np.testing.assert_allclose(tr.reward[clear], expected[clear], atol=1e-5)
+    prev_prob = np.concatenate([np.full_like(ref["prob"][:1], 1.0), ref["prob"][:-1]])
+    _assert_charged(c, tr, ref, charged, prev_prob)
     with pytest.raises(ValueError, match="alarm_forward"):
         dataclasses.replace(c, alarm_onset=True)
