@@ -700,7 +700,7 @@ def collect_episodes(
 
 
 def with_colour_counterfactuals(
-    dataset: CheckerDataset, per_positive: int = 1, seed: int = 0
+    dataset: CheckerDataset, per_positive: int = 1, seed: int = 0, lava: bool = False
 ) -> CheckerDataset:
     """``dataset`` plus, for each door-only positive, ``per_positive`` recoloured negatives.
 
@@ -712,6 +712,12 @@ def with_colour_counterfactuals(
     through a permitted door while its window looks like a forbidden one), and without them
     a checker can learn to ignore the sentence and alarm in front of every door (the
     measurement is in ``docs/decisions.md``).
+
+    With ``lava``, door-and-lava positives are recoloured too, where the violation is the
+    door: with lookahead 1 and no final windows, when the cell in front (last frame) is a door
+    of the named colour, the next step enters that door and not lava. Without these copies a
+    TwoRooms-Lava checker alarmed on 10% of the windows facing a permitted open door under
+    door-and-lava sentences (``docs/decisions.md``).
 
     The new colour is drawn among the (template, colour) combinations of the dataset's
     language split (``meta["split"]``), so the held-out combinations stay unseen. Rows are
@@ -732,15 +738,24 @@ def with_colour_counterfactuals(
     for t, c in combos:
         by_template.setdefault(t, []).append(c)
     colour_ids = {language.VOCAB.index(c): c for c in language.COLOURS}
+    # The door the agent faces in each window's last frame (colour -1: no door).
+    v = dataset.windows.shape[2]
+    front = dataset.windows[:, -1, v // 2, v - 2].astype(np.int64)
+    door_ahead = np.where(front[:, 0] == DOOR, front[:, 1], -1)
+    lava_exact = lava and lookahead == 1 and not dataset.meta.get("final_windows", False)
     rng = np.random.default_rng(seed)
     rows, tokens = [], []
     for r in np.flatnonzero(dataset.labels > 0):
         t = int(dataset.template_id[r])
-        if t < 0 or language.TEMPLATES[t].has_lava:
+        if t < 0:
             continue
         named = [colour_ids[i] for i in dataset.tokens[r] if i in colour_ids]
         others = [c for c in by_template.get(t, []) if c not in named]
         if len(named) != 1 or not others:
+            continue
+        if language.TEMPLATES[t].has_lava and not (
+            lava_exact and door_ahead[r] == COLOR_NAMES.index(named[0])
+        ):
             continue
         for c in rng.choice(others, size=min(per_positive, len(others)), replace=False):
             rows.append(r)

@@ -17,6 +17,7 @@ function and gradients as encoding every row, at a fraction of the GRU's cost.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 import warnings
@@ -59,6 +60,9 @@ class CheckerTrainConfig:
     # (checker.data.with_colour_counterfactuals), so the checker must read the sentence's
     # colour; 0: none. Skipped, with a warning, above lookahead 1 (labels would not be exact).
     counterfactuals: int = 1
+    # Also recolour door-and-lava positives whose next step enters the named door (exact only
+    # at lookahead 1 without final windows; elsewhere they keep no copy).
+    lava_counterfactuals: bool = False
     # Fraction of the training and validation rows copied with keys, balls and boxes strewn
     # over empty cells (checker.data.with_distractors), so the checker ignores objects no
     # constraint names; 0: none. Skipped, with a warning, above lookahead 1.
@@ -241,7 +245,8 @@ def train_checker(
         train_ds, val_ds = trainval.split((1 - val_fraction, val_fraction), seed=s.seed)
     # Each augmentation keeps labels exact only where ``exact`` holds (see their docstrings).
     for name, amount, augment, offset, exact, why in (
-        ("colour counterfactuals", s.counterfactuals, with_colour_counterfactuals, 0,
+        ("colour counterfactuals", s.counterfactuals,
+         functools.partial(with_colour_counterfactuals, lava=s.lava_counterfactuals), 0,
          lookahead <= 1, f"lookahead {lookahead} > 1"),
         ("distractors", s.distractors, with_distractors, 2,
          lookahead <= 1, f"lookahead {lookahead} > 1"),

@@ -18,7 +18,7 @@ import jaxgrid
 from checker import CheckerDataset, NoisyOracleParams, noisy_oracle_policy
 from checker.data import compute_labels
 from jaxgrid import language
-from jaxgrid.constants import BALL, BOX, DIR_TO_VEC, DOOR, KEY, LOCKED
+from jaxgrid.constants import BALL, BOX, COLOR_TO_IDX, DIR_TO_VEC, DOOR, KEY, LAVA, LOCKED
 from jaxgrid.wrappers import AutoReset
 
 # ----------------------------------------------------------------------------------- labels
@@ -342,6 +342,50 @@ def test_blocked_counterfactual_windows_precede_no_violation(env_id):
     every = jax.jit(jax.vmap(jax.vmap(env.step, (None, 0)), (0, None)), compiler_options=CHEAP)
     _, ts = every(blocked, jnp.arange(7, dtype=jnp.int32))
     assert not np.asarray(ts.info["violation"]).any()
+
+
+def test_lava_sentence_counterfactuals_only_where_the_door_is_ahead():
+    """With lava=True, door-and-lava positives facing the named door are recoloured; from
+    that state, with the new colour forbidden, no action violates. Lava-ahead positives,
+    lava=False and inexact settings (lookahead 0, final windows) give them no copy."""
+    env = jaxgrid.make("TwoRoomsLava-v0")
+    states = _states_before_violations(env, envs=32)
+    c = states.extras.constraint
+    v = env.view_size
+    images = np.asarray(jax.jit(jax.vmap(env.observe), compiler_options=CHEAP)(states)["image"])
+    front = images[:, v // 2, v - 2]
+    lava_sentence = np.asarray(c.forbids_lava)
+    door_ahead = lava_sentence & (front[:, 0] == DOOR) & (front[:, 1] == np.asarray(c.door_colour))
+    lava_ahead = lava_sentence & (front[:, 0] == LAVA)
+    assert door_ahead.sum() >= 2 and lava_ahead.sum() >= 2, "rollout should violate both ways"
+    n = len(images)
+    ds = CheckerDataset(
+        windows=images[:, None], tokens=np.asarray(c.tokens), labels=np.ones(n, np.uint8),
+        template_id=np.asarray(c.template_id), constraint_type=np.asarray(c.paper_type),
+        scenario=np.array(["lava"] * n), extras={"origin": np.arange(n)},
+        meta={"lookahead": 1, "final_windows": False, "split": "train"},
+    )  # fmt: skip
+    out = checker.with_colour_counterfactuals(ds, per_positive=1, seed=0, lava=True)
+    new = out.labels == 0
+    src = out.extras["origin"][new]
+    assert set(src[lava_sentence[src]]) == set(np.flatnonzero(door_ahead))
+    # Each copy's sentence names another colour; from its state with that colour forbidden
+    # (lava still forbidden), every action is safe.
+    colours = [language.parse(language.detokenize(t)) for t in out.tokens[new]]
+    recoloured = jnp.asarray([COLOR_TO_IDX[p.colour] for p in colours], jnp.int32)
+    assert np.all(np.asarray(recoloured) != np.asarray(c.door_colour)[src])
+    moved = jax.tree.map(lambda a: a[src], states)
+    moved = moved.replace(extras=moved.extras.replace(
+        constraint=moved.extras.constraint.replace(door_colour=recoloured)))  # fmt: skip
+    every = jax.jit(jax.vmap(jax.vmap(env.step, (None, 0)), (0, None)), compiler_options=CHEAP)
+    _, ts = every(moved, jnp.arange(7, dtype=jnp.int32))
+    assert not np.asarray(ts.info["violation"]).any()
+    # Without lava=True, or where the labels would not be exact, lava sentences keep no copy.
+    for meta, lava in (({}, False), ({"lookahead": 0}, True), ({"final_windows": True}, True)):
+        inexact = ds.subset(np.arange(n))
+        inexact.meta.update(meta)
+        out = checker.with_colour_counterfactuals(inexact, per_positive=1, seed=0, lava=lava)
+        assert not lava_sentence[out.extras["origin"][out.labels == 0]].any()
 
 
 def test_blocked_counterfactuals_refuse_inexact_labels(toy):

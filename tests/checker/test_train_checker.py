@@ -11,6 +11,7 @@ from helpers.checker_cases import TINY
 
 from checker.metrics import evaluate
 from checker.train import CheckerTrainConfig, train_checker
+from jaxgrid import language
 
 # --------------------------------------------------------------------------------- training
 
@@ -43,3 +44,22 @@ def test_blocked_counterfactuals_only_where_labels_stay_exact(toy):
     assert history["train_rows"] == rows[0]
     with pytest.raises(ValueError, match="CheckerTrainConfig.blocked"):
         CheckerTrainConfig(blocked=-1)
+
+
+def test_lava_counterfactuals_recolour_door_and_lava_positives(toy):
+    """``lava_counterfactuals`` adds a recoloured negative per door-and-lava positive facing
+    the named door; without it such positives get none."""
+    train = toy[0].subset(np.arange(len(toy[0])))
+    said = [language.parse(language.detokenize(t)).colour for t in train.tokens]
+    train.template_id = 7 + 4 * train.template_id  # the same door clause, and "stay away from lava"
+    train.tokens = np.stack([language.tokenize(language.render(int(t), c))
+                             for t, c in zip(train.template_id, said, strict=True)])  # fmt: skip
+    base = dict(window=TINY.window, epochs=1, batch_size=64, test_fraction=0.0, val_fraction=0.0,
+                distractors=0)  # fmt: skip
+    rows = {
+        lava: train_checker(train, CheckerTrainConfig(**base, lava_counterfactuals=lava),
+                            model=TINY, progress=False)[1]["train_rows"]
+        for lava in (False, True)
+    }  # fmt: skip
+    assert rows[False] == len(train)
+    assert rows[True] - rows[False] == int(train.labels.sum()) > 0
