@@ -9,9 +9,9 @@ show that: such windows are rare and never positive. Here every window of ``envs
 ``steps`` auto-reset rollouts is scored and labelled by the monitor (as in
 ``checker.collect_episodes``), and the alarms are counted per kind of cell in front of the
 agent in the window's last frame (doors by state and by whether the sentence names their
-colour). ``oracle`` is the noisy oracle (``checker.noisy_oracle_policy``) in its mix of
-obeying and ignoring the constraint, which walks through doors; ``random`` rarely leaves
-the first room.
+colour), as are the violations the checker misses. ``oracle`` is the noisy oracle
+(``checker.noisy_oracle_policy``) in its mix of obeying and ignoring the constraint, which
+walks through doors; ``random`` rarely leaves the first room.
 """
 
 from __future__ import annotations
@@ -103,7 +103,8 @@ def run(cfg: FalseAlarmConfig) -> dict:
         neg = m & ~label
         rows[g] = {"windows": int(m.sum()), "positives": int((m & label).sum()),
                    "false_alarms": int((neg & alarm).sum()),
-                   "false_alarm_rate": float((neg & alarm).sum() / max(neg.sum(), 1))}  # fmt: skip
+                   "false_alarm_rate": float((neg & alarm).sum() / max(neg.sum(), 1)),
+                   "missed": int((m & label & ~alarm).sum())}  # fmt: skip
     total = {"windows": len(label), "positives": int(label.sum()), "alarms": int(alarm.sum()),
              "true_alarms": int((alarm & label).sum()), "false_alarms": int((alarm & ~label).sum()),
              "missed": int((~alarm & label).sum())}  # fmt: skip
@@ -119,10 +120,11 @@ def _print(cfg: FalseAlarmConfig, total: dict, rows: dict) -> None:
           f"{total['positives']} positive; {total['alarms']} alarms, {total['false_alarms']} "
           f"false, {total['missed']} violations missed")  # fmt: skip
     width = max(len(g) for g in [*rows, "in front"])
-    print(f"{'in front':<{width}}  {'windows':>8}  {'positive':>8}  {'false alarms':>12}  rate")
+    print(f"{'in front':<{width}}  {'windows':>8}  {'positive':>8}  {'missed':>8}  "
+          f"{'false alarms':>12}  rate")  # fmt: skip
     for g, r in sorted(rows.items(), key=lambda kv: -kv[1]["false_alarms"]):
-        print(f"{g:<{width}}  {r['windows']:>8}  {r['positives']:>8}  {r['false_alarms']:>12}  "
-              f"{100 * r['false_alarm_rate']:.2f}%")  # fmt: skip
+        print(f"{g:<{width}}  {r['windows']:>8}  {r['positives']:>8}  {r['missed']:>8}  "
+              f"{r['false_alarms']:>12}  {100 * r['false_alarm_rate']:.2f}%")  # fmt: skip
 
 
 def main(argv=None) -> dict:

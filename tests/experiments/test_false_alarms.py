@@ -42,6 +42,7 @@ def test_counts_add_up(tmp_path):
     assert sum(r["windows"] for r in rows.values()) == total["windows"]
     assert sum(r["positives"] for r in rows.values()) == total["positives"]
     assert sum(r["false_alarms"] for r in rows.values()) == total["false_alarms"]
+    assert sum(r["missed"] for r in rows.values()) == total["missed"]
     assert total["alarms"] == total["true_alarms"] + total["false_alarms"]
     assert total["positives"] == total["true_alarms"] + total["missed"]
     assert total["alarms"] == int((scores > threshold).sum())
