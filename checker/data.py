@@ -47,7 +47,7 @@ TwoRooms-Lava, where lava ends the episode, it scored every step into lava as sa
 ``final_windows=True`` (balanced collection only) the windows that end at each episode's final
 observation are drawn from too, labelled by the step that ended the episode (1 where it
 violated, whatever ``lookahead``): the window of the last frames of an episode and the
-observation it ended on, with that episode's sentence.
+observation it ended on, with that episode's sentence. ``extras["final"]`` marks these rows.
 
 Balancing
 ---------
@@ -101,6 +101,7 @@ __all__ = [
     "validate_window",
     "with_blocked_counterfactuals",
     "with_colour_counterfactuals",
+    "before_step",
     "with_distractors",
 ]
 
@@ -630,6 +631,7 @@ def collect(
         is_final = t_sel >= t_total
         meta["final_windows_drawn"] = int(np.sum(is_final))
         meta["final_windows_positive"] = int(np.sum(labels_np[t_sel, e_sel] & is_final))
+        extras["final"] = is_final[perm]  # which rows end after their labelled step
     ds = CheckerDataset(**arrays, extras=extras, meta=meta)
     ds.meta.update(
         num_samples=len(ds),
@@ -699,6 +701,17 @@ def collect_episodes(
 # --------------------------------------------------------------------------------------
 
 
+def before_step(dataset: CheckerDataset) -> np.ndarray | None:
+    """bool ``(N,)``: the rows whose window ends before the step their label judges (every
+    row without final windows; with them, the rows ``extras["final"]`` does not mark), or
+    ``None`` for a final-windows dataset that does not record which rows are final."""
+    if not dataset.meta.get("final_windows", False):
+        return np.ones(len(dataset), bool)
+    if "final" not in dataset.extras:
+        return None
+    return ~np.asarray(dataset.extras["final"], bool)
+
+
 def with_colour_counterfactuals(
     dataset: CheckerDataset, per_positive: int = 1, seed: int = 0, lava: bool = False
 ) -> CheckerDataset:
@@ -714,8 +727,9 @@ def with_colour_counterfactuals(
     measurement is in ``docs/decisions.md``).
 
     With ``lava``, door-and-lava positives are recoloured too, where the violation is the
-    door: with lookahead 1 and no final windows, when the cell in front (last frame) is a door
-    of the named colour, the next step enters that door and not lava. Without these copies a
+    door: with lookahead 1, when the cell in front (last frame) of a window that ends before
+    its step (not a final window, :func:`before_step`) is a door of the named colour, the next
+    step enters that door and not lava. Without these copies a
     TwoRooms-Lava checker alarmed on 10% of the windows facing a permitted open door under
     door-and-lava sentences (``docs/decisions.md``).
 
@@ -742,7 +756,9 @@ def with_colour_counterfactuals(
     v = dataset.windows.shape[2]
     front = dataset.windows[:, -1, v // 2, v - 2].astype(np.int64)
     door_ahead = np.where(front[:, 0] == DOOR, front[:, 1], -1)
-    lava_exact = lava and lookahead == 1 and not dataset.meta.get("final_windows", False)
+    ahead = before_step(dataset) if lava and lookahead == 1 else None
+    if ahead is None:
+        ahead = np.zeros(len(dataset), bool)
     rng = np.random.default_rng(seed)
     rows, tokens = [], []
     for r in np.flatnonzero(dataset.labels > 0):
@@ -754,7 +770,7 @@ def with_colour_counterfactuals(
         if len(named) != 1 or not others:
             continue
         if language.TEMPLATES[t].has_lava and not (
-            lava_exact and door_ahead[r] == COLOR_NAMES.index(named[0])
+            ahead[r] and door_ahead[r] == COLOR_NAMES.index(named[0])
         ):
             continue
         for c in rng.choice(others, size=min(per_positive, len(others)), replace=False):
@@ -801,8 +817,9 @@ def with_blocked_counterfactuals(
     env can show. Doors-only rollouts never show a key or a locked door where a forbidden
     door would be, and a checker trained without such windows can take either for the door
     (the measurement is in ``docs/decisions.md``). ``meta["blocked_negatives"]`` counts the
-    rows. Raises ``ValueError`` for ``per_positive < 0``, a lookahead other than 1, or a
-    dataset with final windows (whose positives already entered the cell).
+    rows. Final windows' positives already entered the cell and get no copy. Raises
+    ``ValueError`` for ``per_positive < 0``, a lookahead other than 1, or a dataset with final
+    windows that does not say which rows are final (:func:`before_step`).
     """
     if not isinstance(per_positive, int | np.integer) or per_positive < 0:
         raise ValueError(f"per_positive must be an int >= 0, got {per_positive!r}")
@@ -810,9 +827,11 @@ def with_blocked_counterfactuals(
         raise ValueError(
             f"blocked counterfactuals need lookahead 1, got {dataset.meta['lookahead']}"
         )
-    if dataset.meta.get("final_windows", False):
-        raise ValueError("blocked counterfactuals need a dataset without final windows")
-    rows = np.repeat(np.flatnonzero(dataset.labels > 0), per_positive)
+    ahead = before_step(dataset)
+    if ahead is None:
+        raise ValueError("blocked counterfactuals need to know which rows are final windows "
+                         "(extras['final'], recorded by collect)")  # fmt: skip
+    rows = np.repeat(np.flatnonzero((dataset.labels > 0) & ahead), per_positive)
     if len(rows) == 0:
         return dataset
     rng = np.random.default_rng(seed)

@@ -29,6 +29,7 @@ import optax
 
 from checker.data import (
     CheckerDataset,
+    before_step,
     validate_window,
     with_blocked_counterfactuals,
     with_colour_counterfactuals,
@@ -61,7 +62,7 @@ class CheckerTrainConfig:
     # colour; 0: none. Skipped, with a warning, above lookahead 1 (labels would not be exact).
     counterfactuals: int = 1
     # Also recolour door-and-lava positives whose next step enters the named door (exact only
-    # at lookahead 1 without final windows; elsewhere they keep no copy).
+    # at lookahead 1 and before the step, not in final windows; elsewhere they keep no copy).
     lava_counterfactuals: bool = False
     # Fraction of the training and validation rows copied with keys, balls and boxes strewn
     # over empty cells (checker.data.with_distractors), so the checker ignores objects no
@@ -69,8 +70,8 @@ class CheckerTrainConfig:
     distractors: float = 0.5
     # Negatives added per positive with the cell in front shown as a key, ball, box or locked
     # door (checker.data.with_blocked_counterfactuals), so the checker tells an open door from
-    # what cannot be entered; 0: none. Skipped, with a warning, unless lookahead is 1 and
-    # final_windows is off (labels would not be exact).
+    # what cannot be entered; 0: none. Final windows get none. Skipped, with a warning, unless
+    # lookahead is 1 (labels would not be exact) and the final windows are marked.
     blocked: int = 0
     # Also train on the windows that end at an episode's final observation, labelled by the
     # step that ended it (checker.data, "Final windows"): the checker reward and the shield
@@ -251,8 +252,8 @@ def train_checker(
         ("distractors", s.distractors, with_distractors, 2,
          lookahead <= 1, f"lookahead {lookahead} > 1"),
         ("blocked counterfactuals", s.blocked, with_blocked_counterfactuals, 4,
-         lookahead == 1 and not final_windows, f"lookahead {lookahead}"
-         + (" and final windows" if final_windows else "")),
+         lookahead == 1 and before_step(train_ds) is not None,
+         f"lookahead {lookahead}" if lookahead != 1 else "unmarked final windows"),
     ):  # fmt: skip
         if not amount:
             continue

@@ -124,7 +124,7 @@ def _expected_windows(env, key, num_envs, steps, window):
         done.append(np.asarray(ts.terminated | ts.truncated))
         viol.append(np.asarray(ts.info["violation"], bool))
     blank = np.zeros_like(obs[0][0])
-    expected, final_positives = Counter(), 0
+    expected, final_expected = Counter(), Counter()
     for e in range(num_envs):
         episode = []  # frames of the current episode so far
         for t in range(steps + 1):
@@ -132,14 +132,14 @@ def _expected_windows(env, key, num_envs, steps, window):
                 frames = ([blank] * window + episode + [finals[t][e]])[-window:]
                 key_ = (np.stack(frames).tobytes(), int(viol[t][e]), tokens[t - 1][e].tobytes())
                 expected[key_] += 1
-                final_positives += int(viol[t][e])
+                final_expected[key_] += 1
                 episode = []
             episode.append(obs[t][e])
             if t < steps:  # lookahead 1: the last position's label is beyond the rollout
                 label = int(viol[t + 1][e])  # the step into t + 1 ends t's episode or not
                 frames = ([blank] * window + episode)[-window:]
                 expected[(np.stack(frames).tobytes(), label, tokens[t][e].tobytes())] += 1
-    return expected, final_positives
+    return expected, final_expected
 
 
 def test_final_windows_are_the_finished_episodes_with_their_last_step():
@@ -147,14 +147,17 @@ def test_final_windows_are_the_finished_episodes_with_their_last_step():
     episode's final observation (labelled by the step that ended it, with the finished
     episode's sentence) is drawn, each once, when the samples asked for exceed them."""
     env, key, num_envs, steps, window = jaxgrid.make("TwoRoomsLava-v0"), jax.random.key(3), 8, 48, 3
-    expected, final_positives = _expected_windows(env, key, num_envs, steps, window)
+    expected, final_expected = _expected_windows(env, key, num_envs, steps, window)
+    final_positives = sum(n for (_, lab, _), n in final_expected.items() if lab)
     assert final_positives >= 2, "the walker should die in lava in this rollout"
     ds = checker.collect(env, _turn_or_walk, None, key, 4 * num_envs * steps, window,
                          lookahead=1, num_envs=num_envs, num_steps=steps,
                          final_windows=True)  # fmt: skip
-    got = Counter((w.tobytes(), int(lab), tok.astype(np.uint8).tobytes())
-                  for w, lab, tok in zip(ds.windows, ds.labels, ds.tokens, strict=True))
-    assert got == expected
+    keys = [(w.tobytes(), int(lab), tok.astype(np.uint8).tobytes())
+            for w, lab, tok in zip(ds.windows, ds.labels, ds.tokens, strict=True)]  # fmt: skip
+    assert Counter(keys) == expected
+    # extras["final"] marks exactly the final windows.
+    assert Counter(k for k, f in zip(keys, ds.extras["final"], strict=True) if f) == final_expected
     assert ds.meta["final_windows_positive"] == final_positives
     without = checker.collect(env, _turn_or_walk, None, key, 4 * num_envs * steps, window,
                               lookahead=1, num_envs=num_envs, num_steps=steps)  # fmt: skip
@@ -386,12 +389,19 @@ def test_lava_sentence_counterfactuals_only_where_the_door_is_ahead():
         inexact.meta.update(meta)
         out = checker.with_colour_counterfactuals(inexact, per_positive=1, seed=0, lava=lava)
         assert not lava_sentence[out.extras["origin"][out.labels == 0]].any()
+    # Marked final windows: only the rows before their step are recoloured.
+    marked = ds.subset(np.arange(n))
+    marked.meta["final_windows"] = True
+    marked.extras["final"] = np.arange(n) == np.flatnonzero(door_ahead)[0]
+    out = checker.with_colour_counterfactuals(marked, per_positive=1, seed=0, lava=True)
+    src = out.extras["origin"][out.labels == 0]
+    assert set(src[lava_sentence[src]]) == set(np.flatnonzero(door_ahead)[1:])
 
 
 def test_blocked_counterfactuals_refuse_inexact_labels(toy):
     train, _ = toy
     for meta, match in (({"lookahead": 0}, "lookahead"), ({"lookahead": 2}, "lookahead"),
-                        ({"final_windows": True}, "final windows")):  # fmt: skip
+                        ({"final_windows": True}, "which rows are final")):  # fmt: skip
         bad = train.subset(np.arange(len(train)))
         bad.meta.update(meta)
         with pytest.raises(ValueError, match=match):

@@ -26,8 +26,8 @@ def test_training_separates_toy_set(toy, trained_toy):
 
 
 def test_blocked_counterfactuals_only_where_labels_stay_exact(toy):
-    """``blocked`` adds one negative per training positive, and is skipped with a warning on a
-    dataset with final windows, whose positives already entered the cell."""
+    """``blocked`` adds one negative per training positive; final windows' positives, which
+    already entered the cell, get none, and unmarked final windows skip it with a warning."""
     train = toy[0].subset(np.arange(len(toy[0])))
     base = dict(window=TINY.window, epochs=1, batch_size=64, test_fraction=0.0, val_fraction=0.0,
                 counterfactuals=0, distractors=0)  # fmt: skip
@@ -39,9 +39,14 @@ def test_blocked_counterfactuals_only_where_labels_stay_exact(toy):
     assert rows[1] - rows[0] == int(train.labels.sum()) > 0
     train.meta["final_windows"] = True
     settings = CheckerTrainConfig(**base, blocked=1, final_windows=True)
-    with pytest.warns(UserWarning, match="no blocked counterfactuals for lookahead 1 and final"):
+    with pytest.warns(UserWarning, match="no blocked counterfactuals for unmarked final windows"):
         history = train_checker(train, settings, model=TINY, progress=False)[1]
     assert history["train_rows"] == rows[0]
+    # Marked final windows: only the positives before their step get a copy.
+    train.extras["final"] = np.arange(len(train)) % 3 == 0
+    history = train_checker(train, settings, model=TINY, progress=False)[1]
+    before = int(np.sum((train.labels > 0) & ~train.extras["final"]))
+    assert history["train_rows"] - rows[0] == before > 0
     with pytest.raises(ValueError, match="CheckerTrainConfig.blocked"):
         CheckerTrainConfig(blocked=-1)
 
