@@ -729,9 +729,9 @@ def with_colour_counterfactuals(
     With ``lava``, door-and-lava positives are recoloured too, where the violation is the
     door: with lookahead 1, when the cell in front (last frame) of a window that ends before
     its step (not a final window, :func:`before_step`) is a door of the named colour, the next
-    step enters that door and not lava. Without these copies a
-    TwoRooms-Lava checker alarmed on 10% of the windows facing a permitted open door under
-    door-and-lava sentences (``docs/decisions.md``).
+    step enters that door and not lava. Without these copies a TwoRooms-Lava checker alarmed
+    on 10% of the windows facing a permitted open door under door-and-lava sentences
+    (``docs/decisions.md``).
 
     The new colour is drawn among the (template, colour) combinations of the dataset's
     language split (``meta["split"]``), so the held-out combinations stay unseen. Rows are
@@ -757,7 +757,7 @@ def with_colour_counterfactuals(
     front = dataset.windows[:, -1, v // 2, v - 2].astype(np.int64)
     door_ahead = np.where(front[:, 0] == DOOR, front[:, 1], -1)
     ahead = before_step(dataset) if lava and lookahead == 1 else None
-    if ahead is None:
+    if ahead is None:  # no door-and-lava copy would be exact
         ahead = np.zeros(len(dataset), bool)
     rng = np.random.default_rng(seed)
     rows, tokens = [], []
