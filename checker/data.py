@@ -102,6 +102,7 @@ __all__ = [
     "with_blocked_counterfactuals",
     "with_colour_counterfactuals",
     "before_step",
+    "front_cells",
     "with_distractors",
 ]
 
@@ -701,6 +702,14 @@ def collect_episodes(
 # --------------------------------------------------------------------------------------
 
 
+def front_cells(windows: np.ndarray) -> np.ndarray:
+    """The cell in front of the agent in each window's last frame: a ``(N, 3)`` view of
+    ``windows`` ``(N, window, V, V, 3)`` (the agent sits at ``(V // 2, V - 1)``, facing up), so
+    assigning to it edits the windows."""
+    v = windows.shape[2]
+    return windows[:, -1, v // 2, v - 2]
+
+
 def before_step(dataset: CheckerDataset) -> np.ndarray | None:
     """bool ``(N,)``: the rows whose window ends before the step their label judges (every
     row without final windows; with them, the rows ``extras["final"]`` does not mark), or
@@ -753,8 +762,7 @@ def with_colour_counterfactuals(
         by_template.setdefault(t, []).append(c)
     colour_ids = {language.VOCAB.index(c): c for c in language.COLOURS}
     # The door the agent faces in each window's last frame (colour -1: no door).
-    v = dataset.windows.shape[2]
-    front = dataset.windows[:, -1, v // 2, v - 2].astype(np.int64)
+    front = front_cells(dataset.windows).astype(np.int64)
     door_ahead = np.where(front[:, 0] == DOOR, front[:, 1], -1)
     ahead = before_step(dataset) if lava and lookahead == 1 else None
     if ahead is None:  # no door-and-lava copy would be exact
@@ -841,7 +849,7 @@ def with_blocked_counterfactuals(
     v = w.shape[2]
     lock = rng.random(n) < 0.5
     kind = np.where(lock, DOOR, rng.choice(_PORTABLE, n))
-    w[:, -1, v // 2, v - 2] = np.stack([kind, rng.integers(0, len(COLOR_NAMES), n),
+    front_cells(w)[:] = np.stack([kind, rng.integers(0, len(COLOR_NAMES), n),
                                         np.where(lock, LOCKED, 0)], -1)  # fmt: skip
     # Hidden cells (all zero) stay hidden and pass no light on; the agent's cell (which shows
     # what it carries) is where light starts, whatever it holds.

@@ -25,6 +25,7 @@ import numpy as np
 import checker as chk
 import jaxgrid
 from checker import cli
+from checker.data import front_cells
 from jaxgrid import language
 from jaxgrid.constants import COLOR_NAMES, DOOR, OBJECT_NAMES, STATE_NAMES
 from jaxgrid.io import write_json
@@ -95,8 +96,7 @@ def run(cfg: FalseAlarmConfig) -> dict:
                        num_steps=cfg.steps, env_id=cfg.env_id)  # fmt: skip
     alarm = chk.predict(trained, data.windows, data.tokens) > trained.threshold
     label = data.labels > 0
-    v = data.windows.shape[2]
-    group = front_groups(data.windows[:, -1, v // 2, v - 2], _named_colours(data.tokens))
+    group = front_groups(front_cells(data.windows), _named_colours(data.tokens))
     rows = {}
     for g in sorted(set(group.tolist())):
         m = group == g
