@@ -89,7 +89,7 @@ class ExperimentConfig:
     # probability of a uniformly random action in place of the behaviour agent's, at each
     # step of the collection (phase b): a trained agent seldom takes the rare steps (into
     # lava) that the checker must learn to recognise
-    collect_epsilon: float = 0.0
+    collect_epsilon: float = 0.2
     curve_points: int = 15  # evaluations: every max(1, updates // curve_points) updates
     final_episodes: int = 500  # final evaluation episodes per agent
     gif_episodes: int = 4  # episodes recorded in episodes.gif (0: none)
@@ -103,13 +103,20 @@ class ExperimentConfig:
     # eval_every (from curve_points); the behaviour agent runs on checker_env_id for
     # behaviour_steps with PPO's default entropy bonus, the novelty bonus only on env_id.
     # The penalty acts from the first update and ramps up over the first half of training
-    # (docs/decisions.md: a full penalty from the start stops agents before any door).
+    # (docs/decisions.md: a full penalty from the start stops agents before any door). The
+    # sentence weighs each view cell's codes (film_codes) and an alarm charges the step it
+    # predicts (alarm_forward): without them, checker agents stop before the doors.
     ppo: PPOConfig = PPOConfig(num_envs=128, num_steps=64, num_minibatches=4,
                                total_timesteps=1_500_000, eval_every=1,
-                               novelty_bonus=0.01, penalty_warmup=0.5)  # fmt: skip
+                               novelty_bonus=0.01, penalty_warmup=0.5,
+                               film_codes=True, alarm_forward=True)  # fmt: skip
     # The checker's training (--checker-*): from --seed, and measured at the threshold at
-    # which the agents' checker alarms (--checker-threshold).
-    checker_train: CheckerTrainConfig = CheckerTrainConfig(epochs=40)
+    # which the agents' checker alarms (--checker-threshold). The blocked and lava
+    # counterfactuals and the final windows remove the false alarms and the misses that
+    # stopped agents or let them into lava (docs/decisions.md).
+    checker_train: CheckerTrainConfig = CheckerTrainConfig(
+        epochs=40, blocked=1, lava_counterfactuals=True, final_windows=True
+    )
     # "window": phases a-c above (the paper's); "memory": a recurrent checker trained on
     # streams of the agents' env under a random policy, for constraints that count
     # (experiments.memory_phase; no flag, the scenario sets it)
