@@ -28,6 +28,7 @@ def play_episodes(
     num_episodes: int,
     shield=None,
     memory=None,
+    track: Callable | None = None,
 ) -> dict[str, jax.Array]:
     """Play ``num_episodes`` episodes in parallel with ``act(obs_batch, key) -> actions``.
 
@@ -40,18 +41,20 @@ def play_episodes(
     folded from ``key`` too, so a fixed key gives the same episodes for the same policy.
     Returns ``(num_episodes,)`` arrays: ``success`` (bool, positive env reward), ``violated``
     (bool, at least one violation), ``violations`` (int32), ``reward`` (float32, env return),
-    ``length`` (int32).
+    ``length`` (int32). With ``track(states) -> bool (E, K)``, also ``tracked`` (bool
+    (E, K)): whether each flag held after any step of the episode (where agents get to).
     """
     reset_key, act_key = jax.random.split(key)
     states, ts = jax.vmap(env.reset)(jax.random.split(reset_key, num_episodes))
     zeros_i = jnp.zeros((num_episodes,), jnp.int32)
     zeros_f = jnp.zeros((num_episodes,), jnp.float32)
     alive = jnp.ones((num_episodes,), bool)
+    track = (lambda states: jnp.zeros((num_episodes, 0), bool)) if track is None else track
 
     stateful = memory is not None
 
     def body(carry, t):
-        (states, memory, policy_memory), obs, alive, ret, viol, length = carry
+        (states, memory, policy_memory), obs, alive, ret, viol, length, seen = carry
         args = (obs, jax.random.fold_in(act_key, t))
         if shield is not None:
             allowed, _ = shield.allowed_now(memory, states)
@@ -67,20 +70,25 @@ def play_episodes(
         ret = ret + ts.reward * alive
         viol = viol + violation_of(ts).astype(jnp.int32) * live
         length = length + live
+        seen = seen | (track(states) & alive[:, None])
         alive = alive & ~(ts.terminated | ts.truncated)
-        return ((states, memory, policy_memory), ts.observation, alive, ret, viol, length), None
+        carry = ((states, memory, policy_memory), ts.observation, alive, ret, viol, length, seen)
+        return carry, None
 
     policy_memory = () if memory is None else memory
     memory = () if shield is None else shield.start(ts.observation)
-    carry = ((states, memory, policy_memory), ts.observation, alive, zeros_f, zeros_i, zeros_i)
-    (_, _, _, ret, viol, length), _ = lax.scan(body, carry, jnp.arange(env.max_steps))
-    return {
+    seen = jnp.zeros_like(track(states))
+    carry = ((states, memory, policy_memory), ts.observation, alive, zeros_f, zeros_i, zeros_i,
+             seen)  # fmt: skip
+    (_, _, _, ret, viol, length, seen), _ = lax.scan(body, carry, jnp.arange(env.max_steps))
+    out = {
         "success": ret > 0,
         "violated": viol > 0,
         "violations": viol,
         "reward": ret,
         "length": length,
     }
+    return out if seen.shape[1] == 0 else {**out, "tracked": seen}
 
 
 def summarise(episodes: dict[str, jax.Array]) -> dict[str, jax.Array]:

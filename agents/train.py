@@ -386,20 +386,22 @@ class Learner(struct.PyTreeNode):
         return (actions, memory) if given else actions
 
     def evaluate(
-        self, params, key, num_episodes: int, env=None, shielded: bool = True, hparams=None
+        self, params, key, num_episodes: int, env=None, shielded: bool = True, hparams=None,
+        track=None,
     ):
         """Per-episode results of :func:`agents.evaluation.play_episodes` (fixed ``key`` =
         fixed episodes) on the raw env (or ``env``): in the shield modes with the shield on
         (as deployed; at the agent's swept threshold in ``hparams``, if any) unless
-        ``shielded`` is False (the policy alone)."""
+        ``shielded`` is False (the policy alone). ``track``: as in ``play_episodes``."""
         env = self.env if env is None else env
         memory = start_memory(self.network, num_episodes) if self.config.recurrent else None
         if self.shield is None or not shielded:
             act = lambda o, k, *m: self.act(params, o, k, None, *m)  # noqa: E731
-            return play_episodes(env, act, key, num_episodes, memory=memory)
+            return play_episodes(env, act, key, num_episodes, memory=memory, track=track)
         shield = self.shield_for(hparams or {}).replace(env=env)
         act = lambda o, k, allowed, *m: self.act(params, o, k, allowed, *m)  # noqa: E731
-        return play_episodes(env, act, key, num_episodes, shield=shield, memory=memory)
+        return play_episodes(env, act, key, num_episodes, shield=shield, memory=memory,
+                             track=track)  # fmt: skip
 
     def chunk(self, runner: RunnerState):
         """``eval_every`` updates, then evaluation on the fixed evaluation seeds."""

@@ -9,6 +9,10 @@ names. An agent that has learned the constraint for some colours and not yet for
 shows it here, where the run's single violation rate cannot. The checker modes need the
 checker the run was trained with (``--checker``; by default the experiment's
 ``DIR/checker``). In the shield modes the shield is on unless ``--policy-alone``.
+
+Each agent's ``stages`` say how far its episodes get: the fraction that carried an object
+and that entered each room beyond the first (rooms are split by the walls that run across
+the grid), next to the goal's. An agent that never finds the goal shows where it stops.
 """
 
 from __future__ import annotations
@@ -17,12 +21,14 @@ import dataclasses
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import checker as chk
 from agents.runner import load_agents
 from checker import cli
 from jaxgrid import hazard_language, language
+from jaxgrid.constants import DOOR, EMPTY, WALL
 from jaxgrid.io import read_json, write_json
 
 
@@ -73,6 +79,32 @@ def groups(constraints: np.ndarray, template_ids: np.ndarray) -> dict[str, np.nd
     return out
 
 
+def dividing_walls(grid) -> jax.Array:
+    """bool (..., W): the columns that split the rooms, walls and doors in at least half
+    their inner rows (the outer walls excluded)."""
+    obj = grid[..., 1:-1, 0]
+    wallish = ((obj == WALL) | (obj == DOOR)).mean(-1) >= 0.5
+    return wallish.at[..., 0].set(False).at[..., -1].set(False)
+
+
+def stage_tracker(env, key: jax.Array):
+    """``(names, track)``: ``track(states) -> bool (E, K)`` flags whether each episode is
+    carrying an object and has passed each room-dividing wall (as many as the scenario's
+    first layout from ``key`` has), for :func:`agents.evaluation.play_episodes`."""
+    state, _ = env.reset(key)
+    walls = int(dividing_walls(state.grid).sum())
+    names = ["carried an object"] + [f"entered room {k + 2}" for k in range(walls)]
+
+    def track(states):
+        xs = jnp.arange(states.grid.shape[1])
+        passed = dividing_walls(states.grid) & (xs < states.agent_pos[:, :1])
+        room = passed.sum(-1, keepdims=True)
+        carrying = states.carrying[:, :1] != EMPTY
+        return jnp.concatenate([carrying, room >= jnp.arange(1, walls + 1)], axis=-1)
+
+    return names, track
+
+
 def run(cfg: BreakdownConfig) -> dict:
     agents = load_agents(cfg.run, _checker_of(cfg))
     learner, config = agents["learner"], agents["config"]
@@ -83,8 +115,10 @@ def run(cfg: BreakdownConfig) -> dict:
     reset_key, _ = jax.random.split(key)  # play_episodes draws its layouts from this key
     _, ts = jax.jit(jax.vmap(learner.env.reset))(jax.random.split(reset_key, cfg.episodes))
     masks = groups(np.asarray(ts.observation["constraint"]), np.asarray(ts.info["template_id"]))
+    stages, track = stage_tracker(learner.env, reset_key)
     play = jax.jit(lambda p, h: learner.evaluate(p, key, cfg.episodes,
-                                                 shielded=not cfg.policy_alone, hparams=h))
+                                                 shielded=not cfg.policy_alone, hparams=h,
+                                                 track=track))  # fmt: skip
     rows = []
     for i, seed in enumerate(agents["seeds"]):
         params = jax.tree.map(lambda x, i=i: x[i], agents["params"])
@@ -92,7 +126,9 @@ def run(cfg: BreakdownConfig) -> dict:
         ep = jax.tree.map(np.asarray, play(params, hparams))
         row = {"seed": seed, **{n: float(v) for n, v in hparams.items()},
                "violation_rate": float(ep["violated"].mean()),
-               "success_rate": float(ep["success"].mean()), "groups": {}}  # fmt: skip
+               "success_rate": float(ep["success"].mean()), "groups": {},
+               "stages": {name: float(ep["tracked"][:, k].mean())
+                          for k, name in enumerate(stages)}}  # fmt: skip
         for name, m in masks.items():
             row["groups"][name] = {"episodes": int(m.sum()),
                                    "violation_rate": float(ep["violated"][m].mean()),
@@ -108,7 +144,8 @@ def run(cfg: BreakdownConfig) -> dict:
 def _print(cfg: BreakdownConfig, rows: list[dict]) -> None:
     names = list(rows[0]["groups"])
     print(f"{cfg.run}: violation % / success % over {cfg.episodes} episodes per agent")
-    swept = [k for k in rows[0] if k not in ("seed", "violation_rate", "success_rate", "groups")]
+    swept = [k for k in rows[0]
+             if k not in ("seed", "violation_rate", "success_rate", "groups", "stages")]
     labels = [f"seed {r['seed']}" + "".join(f" {k}={r[k]:g}" for k in swept) for r in rows]
     width = max(len(n) for n in [*names, "all"])
     print(" " * width + "  " + "  ".join(f"{lab:>14}" for lab in labels))
@@ -119,6 +156,11 @@ def _print(cfg: BreakdownConfig, rows: list[dict]) -> None:
     print(f"{'all':<{width}}  " + "  ".join(f"{cell(r):>14}" for r in rows))
     for n in names:
         print(f"{n:<{width}}  " + "  ".join(f"{cell(r['groups'][n]):>14}" for r in rows))
+    print("\nepisodes that got so far, %")
+    stages = {**rows[0]["stages"], "reached the goal": None}
+    for n in stages:
+        values = [r["success_rate"] if n == "reached the goal" else r["stages"][n] for r in rows]
+        print(f"{n:<{width}}  " + "  ".join(f"{100 * v:>14.1f}" for v in values))
 
 
 def main(argv=None) -> dict:
@@ -130,4 +172,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     main()
 
-__all__ = ["BreakdownConfig", "groups", "main", "run"]
+__all__ = ["BreakdownConfig", "dividing_walls", "groups", "main", "run", "stage_tracker"]

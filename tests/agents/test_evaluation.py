@@ -87,3 +87,22 @@ def test_done_action_never_succeeds(play, two_rooms):
     assert not ep["success"].any() and not ep["violated"].any()
     np.testing.assert_array_equal(ep["length"], two_rooms.max_steps)
     np.testing.assert_array_equal(ep["reward"], 0.0)
+
+
+def test_tracked_flags_hold_if_they_held_after_any_step_of_the_episode():
+    lava = jaxgrid.make("TwoRoomsLava-v0")  # random walks end early in lava, or run on
+
+    def random_act(obs, key):
+        return jax.random.randint(key, obs["direction"].shape, 0, 3)
+
+    # step_count >= 10 holds after some live step exactly when the episode lasted 10 steps
+    track = lambda states: jnp.stack([states.step_count >= 10, states.step_count < 0], -1)  # noqa: E731
+    ep = jax.device_get(fast_jit(lambda k: play_episodes(lava, random_act, k, 16,
+                                                         track=track))(jax.random.PRNGKey(3)))
+    assert ep["tracked"].shape == (16, 2)
+    np.testing.assert_array_equal(ep["tracked"][:, 0], ep["length"] >= 10)
+    assert not ep["tracked"][:, 1].any()
+    assert 0 < (ep["length"] >= 10).sum() < 16  # both kinds of episode occur
+    untracked = fast_jit(lambda k: play_episodes(lava, random_act, k, 16))(
+        jax.random.PRNGKey(3))
+    assert "tracked" not in untracked

@@ -292,7 +292,28 @@ def test_every_episode_falls_in_one_template_and_one_colour_group(finished, tmp_
             assert sum(g["episodes"] for g in groups.values()) == 24
             overall = sum(g["episodes"] * g["violation_rate"] for g in groups.values()) / 24
             assert overall == pytest.approx(row["violation_rate"])
+        stages = row["stages"]
+        assert list(stages) == ["carried an object", "entered room 2"]  # TwoRooms: one wall
+        # the goal lies beyond the wall: no episode reaches it without entering room 2
+        assert row["success_rate"] <= stages["entered room 2"] <= 1
     assert (tmp_path / "b.json").exists()
+
+
+def test_stages_count_the_walls_an_agent_has_passed_and_what_it_carries():
+    import jax.numpy as jnp
+
+    import jaxgrid
+
+    env = jaxgrid.make("ThreeRoomsKey-v0")
+    names, track = breakdown.stage_tracker(env, jax.random.PRNGKey(0))
+    assert names == ["carried an object", "entered room 2", "entered room 3"]
+    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(1), 3))
+    x = jnp.array([1, env.width // 3 + 1, 2 * env.width // 3 + 1])
+    key_held = states.carrying.at[1].set(jnp.array([5, 0, 0], jnp.uint8))
+    states = states.replace(agent_pos=states.agent_pos.at[:, 0].set(x), carrying=key_held)
+    flags = np.asarray(track(states))
+    assert flags.tolist() == [[False, False, False], [True, True, False], [False, True, True]]
+    assert len(breakdown.stage_tracker(jaxgrid.make("TwoRooms-v0"), jax.random.PRNGKey(0))[0]) == 2
 
 
 def test_groups_name_the_colours_a_sentence_names():
