@@ -9,7 +9,8 @@ punishing them afterwards. This runs the TwoRooms pipeline in ``checker`` mode t
 per labelling, with everything else equal, and writes ``DIR/label_timing.json`` and
 ``DIR/label_timing.md``: checker metrics, violations during training and the final
 evaluation of each. Flags are those of :mod:`experiments.two_rooms` (except ``--lookahead``
-and ``--modes``).
+and ``--modes``); the blocked and lava counterfactuals and ``alarm_forward`` are off in both
+arms, since they act only at lookahead 1 or charge the step after an alarm.
 """
 
 from __future__ import annotations
@@ -23,13 +24,21 @@ from experiments import stats
 from experiments.pipeline import (
     ExperimentConfig,
     default_out,
+    override,
     parse_args,
     run_experiment,
     scenario,
 )
 from jaxgrid.io import write_json
 
-SCENARIO = dataclasses.replace(scenario("label_timing", "TwoRooms-v0"), modes=("checker",))
+# Both arms without the options that exist only at lookahead 1 (the blocked and lava
+# counterfactuals label a copy by the next step) or that charge the step after an alarm
+# (after a violation, with "after" labels): otherwise the arms would differ in more than
+# the labels' timing.
+SCENARIO = override(scenario("label_timing", "TwoRooms-v0"), dict(
+    modes=("checker",), ppo=dict(alarm_forward=False),
+    checker_train=dict(blocked=0, lava_counterfactuals=False),
+))  # fmt: skip
 # The ablation sets these itself.
 HIDDEN = {ExperimentConfig: {"modes": None}, CheckerTrainConfig: {"lookahead": None}}
 LABELS = {1: "just before (lookahead 1)", 0: "after (lookahead 0)"}
