@@ -157,10 +157,9 @@ def _print(cfg: BreakdownConfig, rows: list[dict]) -> None:
     for n in names:
         print(f"{n:<{width}}  " + "  ".join(f"{cell(r['groups'][n]):>14}" for r in rows))
     print("\nepisodes that got so far, %")
-    stages = {**rows[0]["stages"], "reached the goal": None}
-    for n in stages:
-        values = [r["success_rate"] if n == "reached the goal" else r["stages"][n] for r in rows]
-        print(f"{n:<{width}}  " + "  ".join(f"{100 * v:>14.1f}" for v in values))
+    so_far = [{**r["stages"], "reached the goal": r["success_rate"]} for r in rows]
+    for n in so_far[0]:
+        print(f"{n:<{width}}  " + "  ".join(f"{100 * f[n]:>14.1f}" for f in so_far))
 
 
 def main(argv=None) -> dict:
