@@ -850,7 +850,7 @@ def with_blocked_counterfactuals(
     lock = rng.random(n) < 0.5
     kind = np.where(lock, DOOR, rng.choice(_PORTABLE, n))
     front_cells(w)[:] = np.stack([kind, rng.integers(0, len(COLOR_NAMES), n),
-                                        np.where(lock, LOCKED, 0)], -1)  # fmt: skip
+                                  np.where(lock, LOCKED, 0)], -1)  # fmt: skip
     # Hidden cells (all zero) stay hidden and pass no light on; the agent's cell (which shows
     # what it carries) is where light starts, whatever it holds.
     last = w[:, -1]
