@@ -65,8 +65,10 @@ class PPOConfig:
 
     ``novelty_bonus`` (0: off) adds an episodic exploration bonus to the training reward
     whenever a step reaches a (cell, carrying or not) pair not yet visited in the episode,
-    annealed linearly to 0 over training. Evaluations, returns and success rates use the env
-    reward only.
+    annealed linearly to 0 over training. With ``novelty_changes`` it also pays for the first
+    change of each grid cell in the episode (a door opened or unlocked, an object picked up
+    or dropped): the cell of a door that opens is not new, but what lies behind it is.
+    Evaluations, returns and success rates use the env reward only.
 
     The run is :attr:`num_chunks` chunks of ``eval_every`` updates of :attr:`batch_size`
     steps; ``total_timesteps`` is rounded down to whole chunks, and every schedule (learning
@@ -113,6 +115,7 @@ class PPOConfig:
     lagrangian_lr: float = 0.05  # Lagrangian: multiplier step size
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
     novelty_bonus: float = 0.0  # episodic bonus per new (cell, carrying) pair, annealed to 0
+    novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
     # end the training episode where the shaping signal fires (shaped: a violation; checker:
     # an alarm), as well as subtracting the penalty: the agent loses the episode's future
     end_episode: bool = False

@@ -37,7 +37,9 @@ class EnvCarry(struct.PyTreeNode):
     # embeddings of the last n - 1 frames (E, n - 1, D) of a window checker, the GRU state
     # (E, H) of a memory checker (checker.memory); a placeholder without a checker
     frames: jax.Array
-    visited: jax.Array  # bool (E, W*H*2): (cell, carrying) pairs seen this episode, or (E, 1)
+    # bool (E, W*H*2): (cell, carrying) pairs seen this episode, then with novelty_changes
+    # (E, W*H) more: the cells changed this episode; (E, 1) without the novelty bonus
+    visited: jax.Array
     ep_return: jax.Array
     ep_length: jax.Array
     alarmed: jax.Array  # bool (E,): the checker alarmed at the episode's previous step
@@ -92,15 +94,39 @@ def _rows(mask: jax.Array, x: jax.Array) -> jax.Array:
     return mask.reshape(mask.shape + (1,) * (x.ndim - 1))
 
 
-def visits(states, width: int, height: int, enabled: bool) -> jax.Array:
+def visits(
+    states, width: int, height: int, enabled: bool, changes: bool = False, before=None
+) -> jax.Array:
     """bool (E, W*H*2): one-hot of each env's (cell, carrying or not) for the novelty bonus;
-    (E, 1) False when the bonus is off, so that nothing is paid for it."""
+    (E, 1) False when the bonus is off, so that nothing is paid for it. With ``changes``,
+    (E, W*H) more columns: the cells whose contents differ from ``before`` (the states before
+    the step; None at an episode's start, where nothing has changed yet)."""
     if not enabled:
         return jnp.zeros((states.agent_pos.shape[0], 1), bool)
     x, y = states.agent_pos[:, 0], states.agent_pos[:, 1]
     carrying = (states.carrying[:, 0] != EMPTY).astype(jnp.int32)
     cell = (x * height + y) * 2 + carrying
-    return cell[:, None] == jnp.arange(width * height * 2)
+    hit = cell[:, None] == jnp.arange(width * height * 2)
+    if not changes:
+        return hit
+    num = states.grid.shape[0]
+    if before is None:
+        changed = jnp.zeros((num, width * height), bool)
+    else:  # grid[x, y] flattens to x * height + y, as the cells above
+        changed = jnp.any(states.grid != before.grid, axis=-1).reshape(num, width * height)
+    return jnp.concatenate([hit, changed], axis=1)
+
+
+def novel(visited: jax.Array, hit: jax.Array, width: int, height: int) -> jax.Array:
+    """float32 (E,): how many of this step's ``hit`` (:func:`visits`) are new to the episode's
+    ``visited``: the (cell, carrying) pair (0 or 1), plus the changed cells not changed
+    before (a step changes at most one)."""
+    cells = width * height * 2
+    if hit.shape[1] == 1:  # the bonus is off: (E, 1) False
+        return jnp.zeros(hit.shape[:1], jnp.float32)
+    new = ~jnp.any(visited[:, :cells] & hit[:, :cells], axis=1)
+    changed = jnp.sum(hit[:, cells:] & ~visited[:, cells:], axis=1)
+    return new.astype(jnp.float32) + changed.astype(jnp.float32)
 
 
 def env_step(
@@ -127,8 +153,9 @@ def env_step(
     previous step of the episode did not alarm; with ``alarm_forward`` the previous step's
     alarm where this step moves forward); ``lagrangian`` puts the alarm in the cost
     instead. The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to
-    the episode. With a ``shield`` (:class:`agents.shield.Shield`) the action is sampled from
-    the policy restricted to the allowed actions, and the mask is kept in the transition.
+    the episode (with ``novelty_changes``, also for a cell's first change in it). With a
+    ``shield`` (:class:`agents.shield.Shield`) the action is sampled from the policy
+    restricted to the allowed actions, and the mask is kept in the transition.
     Where an episode was cut by the time limit (not terminated), the reward and
     cost add ``gamma`` times the final observation's values, so GAE treats the step as
     terminal without losing the future. ``threshold`` (None: ``checker_threshold``) may be a
@@ -194,11 +221,14 @@ def env_step(
         frames = jax.tree.map(lambda f, o: jnp.where(_rows(done, f), f, o), fresh, frames)
     # Novelty: the step reached a (cell, carrying) pair new to this episode. Where the episode
     # ended, ``states`` is the next episode's start, whose visit opens a new set.
-    hit = visits(states, env.width, env.height, c.novelty_bonus != 0)
-    new = ~jnp.any(carry.visited & hit, axis=1) & ~done
-    bonus = novelty * new.astype(jnp.float32)  # novelty is 0 when the bonus is off
+    hit = visits(
+        states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes, carry.state
+    )
+    new = jnp.where(done, 0.0, novel(carry.visited, hit, env.width, env.height))
+    bonus = novelty * new  # novelty is 0 when the bonus is off
     reward = reward + bonus
-    visited = jnp.where(done[:, None], hit, carry.visited | hit)
+    start = visits(states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes)
+    visited = jnp.where(done[:, None], start, carry.visited | hit)
 
     # A step that reaches the goal (or lava) on the last allowed step is both terminated and
     # truncated, and is terminal: only cut episodes bootstrap, and only they run the policy.

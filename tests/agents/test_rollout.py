@@ -180,13 +180,16 @@ def test_checker_and_shaped_rewards(rollouts):
         assert np.abs(bootstrap).max() > 1e-3
 
 
-def test_novelty_bonus_pays_first_visits_per_episode(rollouts):
+@pytest.mark.parametrize("changes", [False, True], ids=["visits", "visits_and_changes"])
+def test_novelty_bonus_pays_first_visits_per_episode(rollouts, changes):
     """The bonus is the reward difference against the same rollout without it (the shaped
     learner of ``rollouts``: same params and keys, so the same actions), and equals a host
-    replay of episodic first visits."""
+    replay of episodic first visits (and, with ``novelty_changes``, first changes of a
+    cell)."""
     runner, out = rollouts
     plain, tr0, _, _ = out["shaped"]
-    bonus = make_learner(dataclasses.replace(plain.config, novelty_bonus=0.5))
+    config = dataclasses.replace(plain.config, novelty_bonus=0.5, novelty_changes=changes)
+    bonus = make_learner(config)
     tr1, carry1 = step_by_step(bonus, fast_jit(bonus.init)(jax.random.PRNGKey(3)))
     np.testing.assert_array_equal(tr0.action, tr1.action)
     got = tr1.reward - tr0.reward
@@ -197,19 +200,42 @@ def test_novelty_bonus_pays_first_visits_per_episode(rollouts):
         return int(x), int(y), bool(carrying != 1)
 
     start = jax.device_get(runner.env.state)
+    grids = np.concatenate([start.grid[None], carry1.state.grid])  # (T + 1, E, W, H, 3)
     expected = np.zeros_like(got)
     for e in range(got.shape[1]):
-        seen = {visit(start, None, e)}
+        seen, changed = {visit(start, None, e)}, set()
         for t in range(got.shape[0]):
             cell = visit(carry1.state, t, e)
             if tr1.done[t, e]:
-                seen = {cell}  # the returned state starts the next episode
+                seen, changed = {cell}, set()  # the returned state starts the next episode
                 continue
             expected[t, e] = 0.5 * (cell not in seen)
             seen.add(cell)
+            if changes:
+                diff = {tuple(xy) for xy in np.argwhere((grids[t, e] != grids[t + 1, e]).any(-1))}
+                expected[t, e] += 0.5 * len(diff - changed)
+                changed |= diff
     np.testing.assert_allclose(got, expected, atol=1e-6)
     assert 0 < (expected > 0).mean() < 1  # both first visits and revisits happen
     assert tr1.done.any()  # and episodes restart within the rollout
+
+
+def test_novelty_changes_pay_each_cell_once_per_episode():
+    """``visits``/``novel`` on hand-made states: a door that opens pays once, opening it
+    again (or a revisit) pays nothing, and the start of an episode clears what was seen."""
+    env = TINY.make_env()
+    w, h = env.width, env.height
+    state, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+    seen = rollout.visits(state, w, h, True, True)
+    assert seen.shape == (2, w * h * 3) and not seen[:, w * h * 2 :].any()
+    door = state.replace(grid=state.grid.at[0, 3, 2, 2].set(7))  # env 0: cell (3, 2) changes
+    hit = rollout.visits(door, w, h, True, True, before=state)
+    np.testing.assert_array_equal(rollout.novel(seen, hit, w, h), [1.0, 0.0])  # pos revisited
+    seen = seen | hit
+    again = rollout.visits(door, w, h, True, True, before=state)
+    np.testing.assert_array_equal(rollout.novel(seen, again, w, h), [0.0, 0.0])
+    off = rollout.visits(door, w, h, False, True, before=state)
+    np.testing.assert_array_equal(rollout.novel(off[:, :1], off, w, h), [0.0, 0.0])
 
 
 def test_terminal_step_on_the_time_limit_is_not_bootstrapped():
