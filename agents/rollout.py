@@ -219,8 +219,9 @@ def env_step(
         emb = masked_map(done, lambda i: embed(checker, i), ts.observation["image"], emb)
         fresh = checker.stream_start(emb, codes[sentence])
         frames = jax.tree.map(lambda f, o: jnp.where(_rows(done, f), f, o), fresh, frames)
-    # Novelty: the step reached a (cell, carrying) pair new to this episode. Where the episode
-    # ended, ``states`` is the next episode's start, whose visit opens a new set.
+    # Novelty: the step reached a (cell, carrying) pair new to this episode (or changed a cell
+    # for the first time in it). Where the episode ended, ``states`` is the next episode's
+    # start, whose visit opens a new set with nothing changed yet.
     hit = visits(
         states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes, carry.state
     )
