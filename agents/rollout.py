@@ -228,7 +228,7 @@ def env_step(
     new = jnp.where(done, 0.0, novel(carry.visited, hit, env.width, env.height))
     bonus = novelty * new  # novelty is 0 when the bonus is off
     reward = reward + bonus
-    start = visits(states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes)
+    start = hit.at[:, env.width * env.height * 2 :].set(False)  # a new episode: no change yet
     visited = jnp.where(done[:, None], start, carry.visited | hit)
 
     # A step that reaches the goal (or lava) on the last allowed step is both terminated and

@@ -221,8 +221,8 @@ def test_novelty_bonus_pays_first_visits_per_episode(rollouts, changes):
 
 
 def test_novelty_changes_pay_each_cell_once_per_episode():
-    """``visits``/``novel`` on hand-made states: a door that opens pays once, opening it
-    again (or a revisit) pays nothing, and the start of an episode clears what was seen."""
+    """``visits``/``novel`` on hand-made states: an episode's start has nothing changed, a
+    door that opens pays once, and opening it again (or a revisit) pays nothing."""
     env = TINY.make_env()
     w, h = env.width, env.height
     state, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
