@@ -38,7 +38,9 @@ interleaved rounds and every figure (differences included) is a median over roun
   forward.
 
 For the baseline, ``baseline_breakdown`` has its seconds per update and NAVIX's bare env
-steps per update.
+steps per update. With ``--baseline-network`` as well, the jaxgrid learner's line adds
+``ratio_bound``: the ratio an environment that cost nothing would give the same learner,
+``1 / (1 - env_fraction)``, since only the env's share of an update can shrink.
 
 ``--ops N`` adds ``ops``: the timed executable run twice under ``jax.profiler``, and the
 ``N`` XLA kernels and the ``N`` places (pass and Flax module, e.g. ``backward:
@@ -86,6 +88,14 @@ DEFAULTS = {
 # --baseline-network: the baseline's learner on jaxgrid's DoorKey-8x8 (same sizes).
 JAXGRID_DOORKEY = "MiniGrid-DoorKey-8x8-v0"
 SAME_LEARNER = "purejaxrl-jaxgrid"
+
+
+def ratio_bound(env_fraction: float) -> float:
+    """The most a faster environment can speed up a learner whose env steps take
+    ``env_fraction`` (in [0, 1)) of its update: the rest of the update stays (Amdahl)."""
+    if not 0 <= env_fraction < 1:
+        raise ValueError(f"env_fraction must be in [0, 1), got {env_fraction!r}")
+    return 1.0 / (1.0 - env_fraction)
 
 
 def _log(*args) -> None:
@@ -541,6 +551,8 @@ def main(argv=None) -> list[dict[str, Any]]:
             line.update(baseline="purejaxrl-navix (Navix-DoorKey-8x8-v0)",
                         baseline_sps=round(_median(base_sps), 1),
                         ratio=round(_median(ratios), 3))  # fmt: skip
+            if base_profile is not None:
+                line["ratio_bound"] = round(ratio_bound(base_profile["env_fraction"]), 3)
         lines.append(line)
         print(json.dumps(line), flush=True)
 

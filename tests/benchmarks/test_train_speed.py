@@ -163,3 +163,10 @@ def test_baseline_network_times_the_baselines_learner_on_jaxgrid():
     same = lines[1]
     assert same["env"] == "MiniGrid-DoorKey-8x8-v0" and same["sps"] > 0
     assert len(same["sps_all"]) == 2 and "ratio" not in same  # no NAVIX baseline timed
+
+
+def test_ratio_bound_is_amdahls_law_over_the_env_share():
+    assert train_speed.ratio_bound(0.0) == 1.0
+    assert train_speed.ratio_bound(0.2) == pytest.approx(1.25)
+    with pytest.raises(ValueError, match="env_fraction"):
+        train_speed.ratio_bound(1.0)
