@@ -50,6 +50,11 @@ class NonFiniteError(FloatingPointError):
     """Training produced a non-finite loss or parameters."""
 
 
+class Cancelled(Exception):
+    """:func:`run` stopped between two chunks because its ``cancel`` event was set; the
+    checkpoints written so far are kept, so the run resumes where it stopped."""
+
+
 class ResumeError(ValueError):
     """``out_dir``'s saved state cannot be resumed: a damaged or missing file, a checkpoint
     without its records, or a run made with another checker. Its message names the file;
@@ -172,6 +177,7 @@ def run(
     desc: str | None = None,
     max_chunks: int | None = None,
     sweep: Mapping[str, Sequence[float]] | None = None,
+    cancel: threading.Event | None = None,
 ) -> dict:
     """Train ``len(seeds)`` agents at once (vmapped); return their histories and parameters.
 
@@ -197,6 +203,8 @@ def run(
             the checkpoint lets a later call resume).
         sweep: hyperparameter values swept in the same program (see above); a resume must
             name the same ones.
+        cancel: checked before every chunk; once set, the run raises :class:`Cancelled`
+            (a run in another thread stops at its next checkpoint).
 
     Returns a dict with ``steps`` (num_chunks,), ``eval`` {metric: (seeds, chunks)},
     (an axis ``seeds`` has one entry per agent), ``seeds`` (the seed of each agent) and,
@@ -210,6 +218,7 @@ def run(
         ValueError: bad configuration (before any compilation), or a resume of ``out_dir``
             with another configuration or other seeds.
         ResumeError: ``out_dir`` holds a checkpoint that cannot be resumed (see ``resume``).
+        Cancelled: ``cancel`` was set.
         NonFiniteError: a chunk produced a non-finite loss or parameters; the message names
             the update and the last good checkpoint's directory, or says that none was
             written yet; that checkpoint is left untouched.
@@ -278,6 +287,8 @@ def run(
             else min(config.num_chunks, done_chunks + max_chunks)
         )
         for c in range(done_chunks, stop):
+            if cancel is not None and cancel.is_set():
+                raise Cancelled(f"stopped before chunk {c + 1}; {_kept(manager, out)}")
             new_runner, metrics, finite = chunk(runner)
             metrics, finite = _host(metrics), _host(finite)
             if not finite.all():
