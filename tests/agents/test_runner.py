@@ -221,6 +221,42 @@ def test_checkpoint_resume_is_bit_identical(tmp_path, uninterrupted):
     assert len(read_jsonl(tmp_path / "metrics.jsonl")) == 4
 
 
+def test_cancel_stops_between_chunks_and_the_run_resumes_bit_identically(tmp_path, uninterrupted):
+    """A set ``cancel`` event stops a run before its next chunk, keeping the checkpoint, and
+    the run resumes to the uninterrupted parameters."""
+    cancel = threading.Event()
+    cancel.set()
+    with pytest.raises(runner.Cancelled, match="no checkpoint was written yet"):
+        run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False, cancel=cancel)
+    run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False, max_chunks=1)
+    with pytest.raises(runner.Cancelled, match=r"before chunk 2; the last good checkpoint"):
+        run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False, cancel=cancel)
+    resumed = run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False, cancel=threading.Event())
+    assert resumed["complete"]
+    for a, b in zip(leaves(resumed["params"]), leaves(uninterrupted["params"]), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_runs_in_two_threads_at_once_match_the_run_alone(uninterrupted):
+    """Experiments train two programs at once in threads: neither changes the other's
+    numbers (a shaped and an unshaped run, at the same time, against each alone)."""
+    shaped = dataclasses.replace(TINY, reward_mode="shaped")
+    alone = run(shaped, seeds=SEEDS, progress=False)
+    results = {}
+
+    def train(name, config):
+        results[name] = run(config, seeds=SEEDS, progress=False)
+
+    threads = [threading.Thread(target=train, args=a) for a in (("none", TINY), ("shaped", shaped))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for name, reference in (("none", uninterrupted), ("shaped", alone)):
+        for a, b in zip(leaves(results[name]["runner"]), leaves(reference["runner"]), strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_run_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
     """A ``run.json`` written before a config field existed describes the same run while
     the field holds its declared default (new options are added off by default)."""

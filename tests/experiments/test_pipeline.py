@@ -8,6 +8,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import threading
+import time
 
 import pytest
 from helpers.cli_help import help_entries, squeezed
@@ -193,6 +195,7 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
         (["--checker-lr", "0"], "--checker-lr must be > 0"),
         (["--checker-test-fraction", "0"], "--checker-test-fraction must be > 0"),
         (["--checker-val-fraction", "0.9"], "--checker-test-fraction + --checker-val-fraction"),
+        (["--workers", "0"], "--workers must be an integer >= 1, got 0"),
     ],
 )
 def test_bad_flags_are_usage_errors_naming_the_flag_before_any_compile(
@@ -333,3 +336,28 @@ def test_collection_epsilon_mixes_uniform_actions_into_the_behaviour_agent():
     uniform = dataclasses.replace(agent, epsilon=1.0)
     counts = np.bincount(uniform(params, obs, None, key), minlength=7)
     assert counts.sum() == 4000 and np.all(np.abs(counts / 4000 - 1 / 7) < 0.03), counts
+
+
+def test_workers_raise_the_first_failure_while_others_still_run():
+    """A phase that fails stops the experiment at once, not when its turn comes; closing the
+    workers sets the event that running phases check."""
+    release = threading.Event()
+    workers = phases.Workers(2)
+    try:
+        slow = workers.submit(release.wait, 30)
+
+        def fail():
+            raise FloatingPointError("diverged")
+
+        failing = workers.submit(fail)
+        start = time.perf_counter()
+        with pytest.raises(FloatingPointError, match="diverged"):
+            workers.results({"slow": slow, "failing": failing})
+        assert time.perf_counter() - start < 10 and not slow.done()
+        assert not workers.cancel.is_set()
+    finally:
+        release.set()
+        workers.close()
+    assert workers.cancel.is_set() and slow.result() is True
+    with pytest.raises(RuntimeError):  # closed: no new phase starts
+        workers.submit(print)

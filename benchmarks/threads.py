@@ -1,0 +1,122 @@
+"""Several training programs at once, in threads, against the same programs one after the other.
+
+``python -m benchmarks.threads [--modes none shaped] [--seeds 5] [--updates 8] [--rounds 3]``
+builds one program per reward mode with the experiments' TwoRooms configuration (``seeds``
+agents vmapped, as an experiment trains a mode), compiles them ahead, and in each round runs
+every program for 2 calls of ``updates`` updates one after the other, then all of them at once
+in one thread each (the experiments' ``--workers``). One JSON line: the seconds of each round
+both ways, the speed-up (one after the other / at once; median over rounds) and whether the
+parameters at once were identical to the bit to those one after the other. The checker modes
+use a freshly initialised checker (the speed does not depend on its weights).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import statistics
+import threading
+import time
+
+import jax
+import numpy as np
+from jax import lax
+
+from agents.config import REWARD_MODES
+from benchmarks.train_speed import device_description, make_checker
+
+CALLS = 2  # calls of the compiled program per run and round
+
+
+def _program(mode: str, seeds: int, updates: int, checker):
+    """``(compiled scan of updates, runner)`` of ``seeds`` agents in ``mode``."""
+    from agents.train import make_learner
+    from experiments.pipeline import preset
+    from experiments.two_rooms import SCENARIO
+
+    config = dataclasses.replace(preset(SCENARIO).ppo, reward_mode=mode)
+    learner = make_learner(config, checker if config.uses_checker else None)
+    runner = jax.jit(jax.vmap(learner.init))(jax.random.split(jax.random.PRNGKey(0), seeds))
+
+    def scan(r):
+        return lax.scan(lambda r, _: (learner.update(r)[0], None), r, None, length=updates)[0]
+
+    compiled = jax.jit(jax.vmap(scan)).lower(runner).compile()
+    return compiled, jax.block_until_ready(compiled(runner))  # warm
+
+
+def _batch_size() -> int:
+    from experiments.pipeline import preset
+    from experiments.two_rooms import SCENARIO
+
+    return preset(SCENARIO).ppo.batch_size
+
+
+def _train(program, out: dict, name: str) -> None:
+    compiled, runner = program
+    for _ in range(CALLS):
+        runner = compiled(runner)
+    out[name] = jax.block_until_ready(runner)
+
+
+def _params(runner) -> list[np.ndarray]:
+    return [np.asarray(x) for x in jax.tree.leaves(runner.params)]
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.threads", description=__doc__)
+    p.add_argument("--modes", nargs="+", default=["none", "shaped"], choices=REWARD_MODES)
+    p.add_argument("--seeds", type=int, default=5, help="agents per program (vmapped)")
+    p.add_argument("--updates", type=int, default=8, help="updates per call")
+    p.add_argument("--rounds", type=int, default=3)
+    args = p.parse_args(argv)
+    for name in ("seeds", "updates", "rounds"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if len(set(args.modes)) < 2:
+        p.error("--modes: name at least two different modes")
+    checker = None
+    if any(m in ("checker", "lagrangian", "shield") for m in args.modes):
+        from experiments.two_rooms import SCENARIO
+
+        checker = make_checker(SCENARIO.ppo.make_env())
+    programs = {m: _program(m, args.seeds, args.updates, checker) for m in args.modes}
+    sequential, threaded, identical = [], [], True
+    for _ in range(args.rounds):
+        alone, together = {}, {}
+        start = time.perf_counter()
+        for m in args.modes:
+            _train(programs[m], alone, m)
+        sequential.append(time.perf_counter() - start)
+        threads = [threading.Thread(target=_train, args=(programs[m], together, m))
+                   for m in args.modes]  # fmt: skip
+        start = time.perf_counter()
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        threaded.append(time.perf_counter() - start)
+        identical &= all(
+            all(np.array_equal(a, b) for a, b in zip(_params(alone[m]), _params(together[m]),
+                                                    strict=True))
+            for m in args.modes
+        )  # fmt: skip
+    steps = len(args.modes) * CALLS * args.updates * args.seeds * _batch_size()
+    line = {
+        "modes": args.modes, "seeds": args.seeds, "updates_per_call": args.updates,
+        "calls": CALLS, "rounds": args.rounds, "device": device_description(),
+        "sequential_s": [round(s, 2) for s in sequential],
+        "threads_s": [round(s, 2) for s in threaded],
+        "sps_sequential": round(steps / statistics.median(sequential)),
+        "sps_threads": round(steps / statistics.median(threaded)),
+        "speedup": round(statistics.median(s / t for s, t in zip(sequential, threaded,
+                                                                   strict=True)), 3),
+        "identical": bool(identical),
+    }  # fmt: skip
+    print(json.dumps(line), flush=True)
+    return line
+
+
+if __name__ == "__main__":
+    main()
