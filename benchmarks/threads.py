@@ -1,8 +1,9 @@
 """Several training programs at once, in threads, against the same programs one after the other.
 
-``python -m benchmarks.threads [--modes none shaped] [--seeds 5] [--updates 8] [--rounds 3]``
-builds one program per reward mode with the experiments' TwoRooms configuration (``seeds``
-agents vmapped, as an experiment trains a mode), compiles them ahead, and in each round runs
+``python -m benchmarks.threads [--experiment two_rooms] [--modes none shaped] [--seeds 5]
+[--updates 8] [--rounds 3]`` builds one program per reward mode with the experiment's
+configuration (``seeds`` agents vmapped, as it trains a mode), compiles them ahead, and in each
+round runs
 every program for 2 calls of ``updates`` updates one after the other, then all of them at once
 in one thread each (the experiments' ``--workers``). One JSON line: the seconds of each round
 both ways, the speed-up (one after the other / at once; median over rounds) and whether the
@@ -27,15 +28,23 @@ from agents.config import REWARD_MODES
 from benchmarks.train_speed import device_description, make_checker
 
 CALLS = 2  # calls of the compiled program per run and round
+EXPERIMENTS = ("two_rooms", "two_rooms_lava", "three_rooms_key", "hazard_rooms")
 
 
-def _program(mode: str, seeds: int, updates: int, checker):
+def _scenario(experiment: str):
+    """The default preset of ``experiments.<experiment>``."""
+    import importlib
+
+    from experiments.pipeline import preset
+
+    return preset(importlib.import_module(f"experiments.{experiment}").SCENARIO)
+
+
+def _program(experiment: str, mode: str, seeds: int, updates: int, checker):
     """``(compiled scan of updates, runner)`` of ``seeds`` agents in ``mode``."""
     from agents.train import make_learner
-    from experiments.pipeline import preset
-    from experiments.two_rooms import SCENARIO
 
-    config = dataclasses.replace(preset(SCENARIO).ppo, reward_mode=mode)
+    config = dataclasses.replace(_scenario(experiment).ppo, reward_mode=mode)
     learner = make_learner(config, checker if config.uses_checker else None)
     runner = jax.jit(jax.vmap(learner.init))(jax.random.split(jax.random.PRNGKey(0), seeds))
 
@@ -46,11 +55,15 @@ def _program(mode: str, seeds: int, updates: int, checker):
     return compiled, jax.block_until_ready(compiled(runner))  # warm
 
 
-def _batch_size() -> int:
-    from experiments.pipeline import preset
-    from experiments.two_rooms import SCENARIO
+def _checker(scenario):
+    """A freshly initialised checker of the experiment's kind."""
+    env = scenario.ppo.make_env()
+    if scenario.checker_kind == "memory":
+        from checker import memory
 
-    return preset(SCENARIO).ppo.batch_size
+        config = memory.MemoryCheckerConfig(view_size=env.view_size)
+        return memory.new_memory_checker(config, jax.random.PRNGKey(0))
+    return make_checker(env)
 
 
 def _train(program, out: dict, name: str) -> None:
@@ -66,6 +79,7 @@ def _params(runner) -> list[np.ndarray]:
 
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(prog="python -m benchmarks.threads", description=__doc__)
+    p.add_argument("--experiment", default="two_rooms", choices=EXPERIMENTS)
     p.add_argument("--modes", nargs="+", default=["none", "shaped"], choices=REWARD_MODES)
     p.add_argument("--seeds", type=int, default=5, help="agents per program (vmapped)")
     p.add_argument("--updates", type=int, default=8, help="updates per call")
@@ -76,12 +90,12 @@ def main(argv=None) -> dict:
             p.error(f"--{name} must be >= 1, got {getattr(args, name)}")
     if len(set(args.modes)) < 2:
         p.error("--modes: name at least two different modes")
+    scenario = _scenario(args.experiment)
     checker = None
     if any(m in ("checker", "lagrangian", "shield") for m in args.modes):
-        from experiments.two_rooms import SCENARIO
-
-        checker = make_checker(SCENARIO.ppo.make_env())
-    programs = {m: _program(m, args.seeds, args.updates, checker) for m in args.modes}
+        checker = _checker(scenario)
+    programs = {m: _program(args.experiment, m, args.seeds, args.updates, checker)
+                for m in args.modes}  # fmt: skip
     sequential, threaded, identical = [], [], True
     for _ in range(args.rounds):
         alone, together = {}, {}
@@ -102,9 +116,10 @@ def main(argv=None) -> dict:
                                                     strict=True))
             for m in args.modes
         )  # fmt: skip
-    steps = len(args.modes) * CALLS * args.updates * args.seeds * _batch_size()
+    steps = len(args.modes) * CALLS * args.updates * args.seeds * scenario.ppo.batch_size
     line = {
-        "modes": args.modes, "seeds": args.seeds, "updates_per_call": args.updates,
+        "experiment": args.experiment, "modes": args.modes, "seeds": args.seeds,
+        "updates_per_call": args.updates,
         "calls": CALLS, "rounds": args.rounds, "device": device_description(),
         "sequential_s": [round(s, 2) for s in sequential],
         "threads_s": [round(s, 2) for s in threaded],
