@@ -332,7 +332,7 @@ def train_agents(
     return result
 
 
-# Seconds per update of each mode relative to ``none`` (python -m benchmarks.train_speed):
+# Seconds per update of each mode relative to ``none`` (TwoRooms, benchmarks.train_speed):
 # modes are compiled and started slowest first, so that the last to finish is a short one.
 TRAINING_COST = {"shield": 1.9, "checker": 1.2, "lagrangian": 1.15, "shaped": 1.0,
                  "none": 1.0, "shield_monitor": 0.97}  # fmt: skip
@@ -341,12 +341,14 @@ TRAINING_COST = {"shield": 1.9, "checker": 1.2, "lagrangian": 1.15, "shaped": 1.
 class Workers:
     """Runs the phases that train, ``n`` at once, in threads.
 
-    Each phase is its own compiled program, and XLA releases the GIL while one runs. On a
-    2-core CPU two programs interleave their many small kernels: two reward modes trained
-    at once finished about 1.2x sooner than one after the other, with bit-identical results
-    (``docs/decisions.md``); three at once gained less. ``n`` 1 runs them one after the
-    other. :meth:`close` sets :attr:`cancel`, which every run checks before each chunk, so
-    that Ctrl-C stops the threads at their next checkpoint, then waits for them.
+    Each phase is its own compiled program, and XLA releases the GIL while one runs. The
+    kernels of both run on XLA's CPU thread pool, which one PPO program leaves idle part of
+    the time (many small, dependent kernels): on 2 cores two reward modes trained at once
+    finished 1.2x (TwoRooms) to 1.4x (HazardRooms) sooner than one after the other, with
+    bit-identical results (``python -m benchmarks.threads``, ``docs/decisions.md``); three
+    at once gained less. ``n`` 1 runs them one after the other. :meth:`close` sets
+    :attr:`cancel`, which every run checks before each chunk, so that Ctrl-C stops the
+    threads at their next checkpoint, then waits for them.
     """
 
     def __init__(self, n: int):

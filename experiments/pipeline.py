@@ -97,8 +97,8 @@ class ExperimentConfig:
     paper: bool = False  # the paper's preset: 1e7 steps, 10 seeds
     progress: bool = True  # show progress bars
     # phases that train at once, in threads (the checker's phases and the modes): on a
-    # 2-core CPU two programs interleave their small kernels, 1.2x sooner than one after the
-    # other, with the same results; 1: one at a time
+    # 2-core CPU two programs fill XLA's thread pool better than one, 1.2-1.4x sooner than
+    # one after the other, with the same results; 1: one at a time
     workers: int = 2
     # time the PureJaxRL-style baseline learner (benchmarks.purejaxrl_ppo) for ~30 s at the
     # end, and print its steps/s beside the run time: run times differ between machines
