@@ -2,13 +2,13 @@
 
 ``python -m benchmarks.threads [--experiment two_rooms] [--modes none shaped] [--seeds 5]
 [--updates 8] [--rounds 3]`` builds one program per reward mode with the experiment's
-configuration (``seeds`` agents vmapped, as it trains a mode), compiles them ahead, and in each
-round runs
-every program for 2 calls of ``updates`` updates one after the other, then all of them at once
-in one thread each (the experiments' ``--workers``). One JSON line: the seconds of each round
-both ways, the speed-up (one after the other / at once; median over rounds) and whether the
-parameters at once were identical to the bit to those one after the other. The checker modes
-use a freshly initialised checker (the speed does not depend on its weights).
+configuration (``seeds`` agents vmapped, as it trains a mode), compiles them ahead, and in
+each round runs every program for 2 calls of ``updates`` updates one after the other, then
+all of them at once in one thread each (the experiments' ``--workers``). One JSON line: the
+seconds of each round both ways, the speed-up (one after the other / at once; median over
+rounds) and whether the parameters at once were identical to the bit to those one after the
+other. The checker modes use a freshly initialised checker of the experiment's kind (the
+speed does not depend on its weights).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import jax
 import numpy as np
 from jax import lax
 
-from agents.config import REWARD_MODES
+from agents.config import REWARD_MODES, PPOConfig
 from benchmarks.train_speed import device_description, make_checker
 
 CALLS = 2  # calls of the compiled program per run and round
@@ -55,17 +55,6 @@ def _program(experiment: str, mode: str, seeds: int, updates: int, checker):
     return compiled, jax.block_until_ready(compiled(runner))  # warm
 
 
-def _checker(scenario):
-    """A freshly initialised checker of the experiment's kind."""
-    env = scenario.ppo.make_env()
-    if scenario.checker_kind == "memory":
-        from checker import memory
-
-        config = memory.MemoryCheckerConfig(view_size=env.view_size)
-        return memory.new_memory_checker(config, jax.random.PRNGKey(0))
-    return make_checker(env)
-
-
 def _train(program, out: dict, name: str) -> None:
     compiled, runner = program
     for _ in range(CALLS):
@@ -92,8 +81,8 @@ def main(argv=None) -> dict:
         p.error("--modes: name at least two different modes")
     scenario = _scenario(args.experiment)
     checker = None
-    if any(m in ("checker", "lagrangian", "shield") for m in args.modes):
-        checker = _checker(scenario)
+    if any(PPOConfig(reward_mode=m).uses_checker for m in args.modes):
+        checker = make_checker(scenario.ppo.make_env(), scenario.checker_kind)
     programs = {m: _program(args.experiment, m, args.seeds, args.updates, checker)
                 for m in args.modes}  # fmt: skip
     sequential, threaded, identical = [], [], True

@@ -115,8 +115,14 @@ def _median(xs):
 # ----------------------------------------------------------------------------------------
 # Ours
 # ----------------------------------------------------------------------------------------
-def make_checker(env):
-    """A freshly initialised checker for ``env`` (the speed does not depend on its weights)."""
+def make_checker(env, kind: str = "window"):
+    """A freshly initialised checker for ``env`` (the speed does not depend on its weights):
+    the window checker, or (``kind`` "memory") the recurrent one."""
+    if kind == "memory":
+        from checker import memory
+
+        config = memory.MemoryCheckerConfig(view_size=env.view_size)
+        return memory.new_memory_checker(config, jax.random.PRNGKey(0))
     from checker.model import CheckerConfig
     from checker.trained import new_checker
 
