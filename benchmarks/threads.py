@@ -25,6 +25,7 @@ import numpy as np
 from jax import lax
 
 from agents.config import REWARD_MODES, PPOConfig
+from benchmarks.timing import compile_ahead
 from benchmarks.train_speed import device_description, make_checker
 
 CALLS = 2  # calls of the compiled program per run and round
@@ -40,18 +41,18 @@ def _scenario(experiment: str):
     return preset(importlib.import_module(f"experiments.{experiment}").SCENARIO)
 
 
-def _program(experiment: str, mode: str, seeds: int, updates: int, checker):
-    """``(compiled scan of updates, runner)`` of ``seeds`` agents in ``mode``."""
+def _program(ppo: PPOConfig, mode: str, seeds: int, updates: int, checker):
+    """``(compiled scan of updates, runner)`` of ``seeds`` agents of ``ppo`` in ``mode``."""
     from agents.train import make_learner
 
-    config = dataclasses.replace(_scenario(experiment).ppo, reward_mode=mode)
+    config = dataclasses.replace(ppo, reward_mode=mode)
     learner = make_learner(config, checker if config.uses_checker else None)
     runner = jax.jit(jax.vmap(learner.init))(jax.random.split(jax.random.PRNGKey(0), seeds))
 
     def scan(r):
         return lax.scan(lambda r, _: (learner.update(r)[0], None), r, None, length=updates)[0]
 
-    compiled = jax.jit(jax.vmap(scan)).lower(runner).compile()
+    compiled, _ = compile_ahead(jax.vmap(scan), runner)
     return compiled, jax.block_until_ready(compiled(runner))  # warm
 
 
@@ -83,7 +84,7 @@ def main(argv=None) -> dict:
     checker = None
     if any(PPOConfig(reward_mode=m).uses_checker for m in args.modes):
         checker = make_checker(scenario.ppo.make_env(), scenario.checker_kind)
-    programs = {m: _program(args.experiment, m, args.seeds, args.updates, checker)
+    programs = {m: _program(scenario.ppo, m, args.seeds, args.updates, checker)
                 for m in args.modes}  # fmt: skip
     sequential, threaded, identical = [], [], True
     for _ in range(args.rounds):
