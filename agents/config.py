@@ -65,9 +65,10 @@ class PPOConfig:
 
     ``novelty_bonus`` (0: off) adds an episodic exploration bonus to the training reward
     whenever a step reaches a (cell, carrying or not) pair not yet visited in the episode,
-    annealed linearly to 0 over training. With ``novelty_changes`` it also pays for the first
-    change of each grid cell in the episode (a door opened or unlocked, an object picked up
-    or dropped): the cell of a door that opens is not new, but what lies behind it is.
+    annealed linearly to 0 over the first ``novelty_anneal`` of training (then 0). With
+    ``novelty_changes`` it also pays for the first change of each grid cell in the episode
+    (a door opened or unlocked, an object picked up or dropped): the cell of a door that
+    opens is not new, but what lies behind it is.
     Evaluations, returns and success rates use the env reward only.
 
     The run is :attr:`num_chunks` chunks of ``eval_every`` updates of :attr:`batch_size`
@@ -116,6 +117,7 @@ class PPOConfig:
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
     novelty_bonus: float = 0.0  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
+    novelty_anneal: float = 1.0  # fraction of the run over which the bonus falls to 0
     # end the training episode where the shaping signal fires (shaped: a violation; checker:
     # an alarm), as well as subtracting the penalty: the agent loses the episode's future
     end_episode: bool = False
@@ -160,6 +162,10 @@ class PPOConfig:
         for name in ("gamma", "gae_lambda", "penalty_start", "penalty_warmup", "penalty_gate"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"PPOConfig.{name} must be in [0, 1], got {getattr(self, name)}")
+        if not 0 < self.novelty_anneal <= 1:
+            raise ValueError(
+                f"PPOConfig.novelty_anneal must be in (0, 1], got {self.novelty_anneal}"
+            )
         if not 0 < self.checker_threshold < 1:  # 0 or 1 would alarm always or never
             raise ValueError(
                 f"PPOConfig.checker_threshold must be in (0, 1), got {self.checker_threshold}"

@@ -167,9 +167,10 @@ class Learner(struct.PyTreeNode):
 
     def novelty_at(self, update: jax.Array) -> jax.Array:
         """The novelty bonus of update ``update``: ``novelty_bonus`` annealed linearly to 0
-        (0 after the last update)."""
+        over the first ``novelty_anneal`` of the updates, 0 after."""
         c = self.config
-        return (c.novelty_bonus * (1.0 - update / c.num_updates)).astype(jnp.float32)
+        fraction = jnp.maximum(0.0, 1.0 - update / (c.novelty_anneal * c.num_updates))
+        return (c.novelty_bonus * fraction).astype(jnp.float32)
 
     # -- init ---------------------------------------------------------------------------
     def init(self, key: jax.Array, hparams: dict | None = None) -> RunnerState:

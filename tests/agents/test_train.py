@@ -207,6 +207,26 @@ def test_every_schedule_ends_on_the_last_update_run():
     assert counts and all(int(n) == steps for _, n in counts)
 
 
+def test_novelty_anneal_ends_the_bonus_early():
+    """``novelty_anneal`` f: the bonus falls linearly to 0 over the first f of the updates and
+    stays 0 after; f = 1 is the whole run, the same values as before the setting existed."""
+    c = dataclasses.replace(ANNEALED, novelty_anneal=0.25)
+    novelty = fast_jit(jax.vmap(make_learner(c).novelty_at))
+    values = np.asarray(novelty(jnp.arange(c.num_updates, dtype=jnp.int32)))
+    end = int(0.25 * c.num_updates)  # 45 of 180
+    assert values[0] == np.float32(c.novelty_bonus)
+    assert np.all(np.diff(values[: end + 1]) < 0) and np.all(values[end:] == 0.0)
+    np.testing.assert_allclose(values[end - 1], c.novelty_bonus / end, rtol=1e-5)
+    c = ANNEALED
+    whole = fast_jit(jax.vmap(make_learner(c).novelty_at))
+    before = fast_jit(jax.vmap(lambda u: (c.novelty_bonus * (1.0 - u / c.num_updates))))
+    u = jnp.arange(c.num_updates, dtype=jnp.int32)
+    np.testing.assert_array_equal(whole(u), before(u).astype(np.float32))
+    for bad in (0.0, 1.5, -0.1):
+        with pytest.raises(ValueError, match="novelty_anneal"):
+            dataclasses.replace(ANNEALED, novelty_anneal=bad)
+
+
 def test_penalty_gate_scales_the_penalty_by_the_last_updates_success():
     """``penalty_gate``: the ramp's penalty times min(1, success / gate), the success being
     the fraction of the last update's finished training episodes that reached the goal."""
