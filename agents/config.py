@@ -68,7 +68,10 @@ class PPOConfig:
     annealed linearly to 0 over the first ``novelty_anneal`` of training (then 0). With
     ``novelty_changes`` it also pays for the first change of each grid cell in the episode
     (a door opened or unlocked, an object picked up or dropped): the cell of a door that
-    opens is not new, but what lies behind it is.
+    opens is not new, but what lies behind it is. With ``novelty_claim`` K > 0 an episode is
+    paid for at most K new pairs (and changes), and the step that reaches the goal is also
+    paid for those it did not reach: every successful episode earns K bonuses, whatever its
+    route, so a tour of the rooms never pays more than the goal.
     Evaluations, returns and success rates use the env reward only.
 
     The run is :attr:`num_chunks` chunks of ``eval_every`` updates of :attr:`batch_size`
@@ -118,6 +121,8 @@ class PPOConfig:
     novelty_bonus: float = 0.0  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
     novelty_anneal: float = 1.0  # fraction of the run over which the bonus falls to 0
+    # the most bonuses an episode earns (0: no cap); reaching the goal pays what is left
+    novelty_claim: int = 0
     # end the training episode where the shaping signal fires (shaped: a violation; checker:
     # an alarm), as well as subtracting the penalty: the agent loses the episode's future
     end_episode: bool = False
@@ -166,6 +171,11 @@ class PPOConfig:
             raise ValueError(
                 f"PPOConfig.novelty_anneal must be in (0, 1], got {self.novelty_anneal}"
             )
+        claim = self.novelty_claim
+        if isinstance(claim, bool) or not isinstance(claim, int | np.integer) or claim < 0:
+            raise ValueError(f"PPOConfig.novelty_claim must be an int >= 0, got {claim!r}")
+        if claim and not self.novelty_bonus:
+            raise ValueError("PPOConfig.novelty_claim needs a novelty_bonus > 0 to pay out")
         if not 0 < self.checker_threshold < 1:  # 0 or 1 would alarm always or never
             raise ValueError(
                 f"PPOConfig.checker_threshold must be in (0, 1), got {self.checker_threshold}"

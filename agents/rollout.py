@@ -226,6 +226,9 @@ def env_step(
         states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes, carry.state
     )
     new = jnp.where(done, 0.0, novel(carry.visited, hit, env.width, env.height))
+    if c.novelty_claim:  # at most K bonuses per episode; the goal pays those not yet earned
+        left = jnp.maximum(c.novelty_claim - carry.visited.sum(axis=1), 0).astype(jnp.float32)
+        new = jnp.minimum(new, left) + jnp.where(ts.terminated & (ts.reward > 0), left, 0.0)
     bonus = novelty * new  # novelty is 0 when the bonus is off
     reward = reward + bonus
     start = hit.at[:, env.width * env.height * 2 :].set(False)  # a new episode: no change yet

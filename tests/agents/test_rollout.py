@@ -220,6 +220,46 @@ def test_novelty_bonus_pays_first_visits_per_episode(rollouts, changes):
     assert tr1.done.any()  # and episodes restart within the rollout
 
 
+def test_novelty_claim_caps_the_bonus_and_pays_the_rest_at_the_goal():
+    """``novelty_claim`` K: against the same rollout without the bonus, an episode is paid for
+    new (cell, carrying) pairs until it has visited K (its start included), and the step that
+    reaches the goal is paid for the rest, so each successful episode earns K in all."""
+    claim = 4
+    base = dataclasses.replace(
+        TINY, env_id="MiniGrid-Empty-5x5-v0", env_kwargs=(("max_steps", 200),), num_envs=32,
+        **ONE_STEP,
+    )  # fmt: skip
+    plain = make_learner(base)
+    bonus = make_learner(dataclasses.replace(base, novelty_bonus=0.5, novelty_claim=claim))
+    runner = fast_jit(plain.init)(jax.random.PRNGKey(5))
+    tr0, _ = step_by_step(plain, runner, steps=80)
+    tr1, carry1 = step_by_step(bonus, fast_jit(bonus.init)(jax.random.PRNGKey(5)), steps=80)
+    np.testing.assert_array_equal(tr0.action, tr1.action)
+    got = tr1.reward - tr0.reward
+    start = jax.device_get(runner.env.state)
+    expected, earned = np.zeros_like(got), []
+    for e in range(got.shape[1]):
+        seen = {tuple(start.agent_pos[e])}
+        for t in range(got.shape[0]):
+            left = max(claim - len(seen), 0)
+            if tr1.done[t, e]:  # no time limit within the rollout: every end is the goal
+                expected[t, e] = 0.5 * left
+                earned.append(0.5 * (len(seen) - 1) + expected[t, e])
+                seen = {tuple(carry1.state.agent_pos[t, e])}
+                continue
+            cell = tuple(carry1.state.agent_pos[t, e])
+            expected[t, e] = 0.5 * (cell not in seen and left > 0)
+            seen.add(cell)
+    np.testing.assert_allclose(got, expected, atol=1e-6)
+    assert len(earned) >= 3  # episodes reach the goal within the rollout
+    # Each of them earned K - 1 bonuses (the start pays none), whatever its route.
+    np.testing.assert_allclose(earned, 0.5 * (claim - 1), atol=1e-6)
+    with pytest.raises(ValueError, match="novelty_claim"):
+        dataclasses.replace(base, novelty_claim=3)  # no bonus to pay out
+    with pytest.raises(ValueError, match="novelty_claim"):
+        dataclasses.replace(base, novelty_bonus=0.1, novelty_claim=-1)
+
+
 def test_novelty_changes_pay_each_cell_once_per_episode():
     """``visits``/``novel`` on hand-made states: an episode's start has nothing changed, a
     door that opens pays once, and opening it again (or a revisit) pays nothing."""
