@@ -43,12 +43,13 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
     assert dict(cfg.ppo.env_kwargs) == {"sentences": hazard_rooms.SENTENCES}
     base = preset(two_rooms.SCENARIO).ppo
     assert cfg.ppo.novelty_bonus == 0.05 > base.novelty_bonus
+    assert cfg.ppo.novelty_claim == 60 and base.novelty_claim == 0
     # film codes and alarm-forward, measured with the window checker only, stay off here
     assert base.film_codes and base.alarm_forward
     assert not cfg.ppo.film_codes and not cfg.ppo.alarm_forward
     # Every other PPO setting is the paper scenarios' one.
     same = dataclasses.replace(cfg.ppo, env_id=base.env_id, env_kwargs=(), recurrent=False,
-                               novelty_bonus=base.novelty_bonus, film_codes=True,
+                               novelty_bonus=base.novelty_bonus, novelty_claim=0, film_codes=True,
                                alarm_forward=True)  # fmt: skip
     assert same == base
     assert cfg.memory_checker.seed == cfg.ppo.seed
