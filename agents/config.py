@@ -69,9 +69,9 @@ class PPOConfig:
     ``novelty_changes`` it also pays for the first change of each grid cell in the episode
     (a door opened or unlocked, an object picked up or dropped): the cell of a door that
     opens is not new, but what lies behind it is. With ``novelty_claim`` K > 0 an episode is
-    paid for at most K new pairs (and changes), and the step that reaches the goal is also
-    paid for those it did not reach: every successful episode earns K bonuses, whatever its
-    route, so a tour of the rooms never pays more than the goal.
+    paid for new pairs (and changes) until it has K of them, its start included, and the step
+    that reaches the goal is also paid for those it lacks: every successful episode earns the
+    same K - 1 bonuses whatever its route, so a tour of the rooms never pays more than the goal.
     Evaluations, returns and success rates use the env reward only.
 
     The run is :attr:`num_chunks` chunks of ``eval_every`` updates of :attr:`batch_size`

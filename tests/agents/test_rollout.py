@@ -223,7 +223,7 @@ def test_novelty_bonus_pays_first_visits_per_episode(rollouts, changes):
 def test_novelty_claim_caps_the_bonus_and_pays_the_rest_at_the_goal():
     """``novelty_claim`` K: against the same rollout without the bonus, an episode is paid for
     new (cell, carrying) pairs until it has visited K (its start included), and the step that
-    reaches the goal is paid for the rest, so each successful episode earns K in all."""
+    reaches the goal is paid for the rest, so each successful episode earns the same K - 1."""
     claim = 4
     base = dataclasses.replace(
         TINY, env_id="MiniGrid-Empty-5x5-v0", env_kwargs=(("max_steps", 200),), num_envs=32,
