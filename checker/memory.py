@@ -39,6 +39,7 @@ from checker.metrics import auroc
 from checker.model import NUM_COLOURS, NUM_OBJECTS, NUM_STATES, embed_cells, encode_sentence
 from checker.trained import check_vocab, read_meta, read_params, write_params
 from jaxgrid import hazard_language as HL
+from jaxgrid.oracle import oracle_action
 from jaxgrid.wrappers import BatchedAutoReset
 
 # Behaviour policy over MiniGrid's actions (left, right, forward, pickup, drop, toggle, done):
@@ -251,9 +252,19 @@ def load(directory, meta: dict | None = None) -> TrainedMemoryChecker:
 # ------------------------------------------------------------------------------------ data
 
 
-def collect_streams(env, key: jax.Array, num_envs: int, num_steps: int) -> dict:
+def collect_streams(
+    env, key: jax.Array, num_envs: int, num_steps: int, guided: float = 0.0
+) -> dict:
     """``num_envs`` streams of ``num_steps`` frames of ``BatchedAutoReset(env)`` (fresh
     layouts drawn only where an episode ended) under :data:`BEHAVIOUR`, from fresh resets.
+
+    ``guided`` > 0 takes each step's action, with that probability, from the BFS oracle
+    (:func:`jaxgrid.oracle.oracle_action`) instead: half of the streams follow the oracle
+    that obeys the constraint, half the one that plans through lava and forbidden doors. A
+    random policy seldom leaves its first room; guided streams pass doors, carry the key and
+    reach the goal, where trained agents go, and violate there too. 0 (the default) draws
+    every action from :data:`BEHAVIOUR`, as before the option existed.
+
     Returns numpy arrays, ``(N, T, ...)``:
 
     ``frames`` (uint8 images), ``tokens``, ``starts`` (the frame is an episode's first),
@@ -265,9 +276,13 @@ def collect_streams(env, key: jax.Array, num_envs: int, num_steps: int) -> dict:
     everywhere: the scan runs the step out of every frame, the last one included, so every
     frame has its label; the training loss and the metrics take it as a mask).
     """
+    if not 0.0 <= guided <= 1.0:
+        raise ValueError(f"guided must be a probability in [0, 1], got {guided!r}")
     wrapped = BatchedAutoReset(env)
     k_reset, k_run = jax.random.split(key)
     probs = jnp.asarray(BEHAVIOUR)
+    # Which streams' oracle obeys the constraint: alternate, so both halves are exact.
+    obey = jnp.arange(num_envs) % 2 == 0
 
     @jax.jit
     def run(k_reset, k_run):
@@ -276,6 +291,12 @@ def collect_streams(env, key: jax.Array, num_envs: int, num_steps: int) -> dict:
         def body(carry, k):
             states, ts, start = carry
             actions = jax.random.choice(k, len(BEHAVIOUR), (num_envs,), p=probs)
+            if guided > 0:  # static: without guidance the streams are drawn as before
+                expert = jax.vmap(
+                    lambda s, o: oracle_action(s, obey_constraint=o, avoid_lava=o)
+                )(states, obey)
+                follow = jax.random.bernoulli(jax.random.fold_in(k, 1), guided, (num_envs,))
+                actions = jnp.where(follow, expert, actions)
             new_states, new_ts = wrapped.step(states, actions)
             frame = {
                 "frames": ts.observation["image"],
@@ -314,6 +335,7 @@ class MemoryTrainConfig:
     batch_streams: int = 16  # streams per update
     lr: float = 1e-3  # Adam step size
     positive_weight: float = 10.0  # violations are rare: weight their loss
+    guided: float = 0.0  # share of the streams' actions taken from the oracle (collect_streams)
     seed: int = 0
 
     def __post_init__(self):
@@ -325,6 +347,8 @@ class MemoryTrainConfig:
         for name in ("lr", "positive_weight"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{me}.{name} must be > 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.guided <= 1.0:
+            raise ValueError(f"{me}.guided must be in [0, 1], got {self.guided!r}")
         if self.batch_streams > self.streams:
             raise ValueError(
                 f"{me}.batch_streams ({self.batch_streams}) exceeds {me}.streams ({self.streams})"
@@ -465,7 +489,7 @@ def run(
     num_steps = train.steps if num_steps is None else num_steps
     t0 = time.perf_counter()
     data = collect_streams(
-        jaxgrid.make(env_id), jax.random.PRNGKey(train.seed), num_envs, num_steps
+        jaxgrid.make(env_id), jax.random.PRNGKey(train.seed), num_envs, num_steps, train.guided
     )
     params, losses = fit(data, config, train, "train memory checker" if progress else None)
     if out is not None:
@@ -481,7 +505,9 @@ def run(
     }
     for split in splits:
         env = jaxgrid.make(env_id, split=split)
-        test = collect_streams(env, jax.random.PRNGKey(train.seed + 1000), num_envs, num_steps)
+        test = collect_streams(
+            env, jax.random.PRNGKey(train.seed + 1000), num_envs, num_steps, train.guided
+        )
         report[split] = evaluate_streams(predict_streams(params, config, test), test, late)
     report["wall_s"] = time.perf_counter() - t0
     return report
@@ -506,6 +532,10 @@ def main(argv=None) -> dict:
     parser.add_argument(
         "--batch-streams", type=int, default=d.batch_streams, help="streams per update"
     )
+    parser.add_argument(
+        "--guided", type=float, default=d.guided,
+        help="share of actions taken from the oracle (half of the streams obeying, half not)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--late", type=int, default=10, help="steps that make a violation late")
     parser.add_argument(
@@ -517,7 +547,7 @@ def main(argv=None) -> dict:
     if args.late < 1:
         parser.error(f"--late must be at least 1, got {args.late}")
     dests = {"streams": "envs", "steps": "steps", "updates": "updates",
-             "batch_streams": "batch_streams", "seed": "seed"}  # fmt: skip
+             "batch_streams": "batch_streams", "guided": "guided", "seed": "seed"}  # fmt: skip
     try:  # the config checks the values; its messages are given in the flags' names
         train = MemoryTrainConfig(**{field: getattr(args, d) for field, d in dests.items()})
     except ValueError as e:

@@ -47,7 +47,7 @@ def train_memory_checker(cfg, out: Path):
     settings = cfg.memory_checker
     env = cfg.ppo.make_env()
     key = jax.random.PRNGKey(cfg.seed)
-    data = memory.collect_streams(env, key, settings.streams, settings.steps)
+    data = memory.collect_streams(env, key, settings.streams, settings.steps, settings.guided)
     config = memory.MemoryCheckerConfig(view_size=env.view_size)
     params, losses = memory.fit(data, config, settings, "c. memory checker" if cfg.progress
                                 else None)  # fmt: skip
@@ -56,7 +56,7 @@ def train_memory_checker(cfg, out: Path):
                                           threshold=threshold)  # fmt: skip
     memory.save(trained, ckpt)
     test = memory.collect_streams(env, jax.random.fold_in(key, 1), settings.streams,
-                                  settings.steps)  # fmt: skip
+                                  settings.steps, settings.guided)  # fmt: skip
     probs = memory.predict_streams(params, config, test)
     valid = test["valid"]
     metrics = {**binary_metrics(test["label"][valid], probs[valid], threshold),

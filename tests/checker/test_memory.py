@@ -80,6 +80,22 @@ def test_stream_labels_are_the_next_steps_violation(streams):
     np.testing.assert_array_equal(d["next_cost"][:, :-1][inner], d["cost"][:, 1:][inner])
 
 
+def test_guided_streams_follow_the_oracle_on_alternate_halves(streams):
+    """``guided=1``: even streams follow the oracle that obeys the constraint, so none of them
+    violates; odd streams plan through hazards. Both reach the goal far more often than the
+    random behaviour, whose streams are ``streams`` (same env, key and sizes)."""
+    env = jaxgrid.make("HazardRooms-v0")
+    d = MC.collect_streams(env, jax.random.PRNGKey(0), 16, 60, guided=1.0)
+    assert d["frames"].shape == streams["frames"].shape
+    assert d["label"][0::2].sum() == 0 and d["label"][1::2].sum() > 0
+    # episodes that end before the stream does: the oracle reaches the goal in well under 60
+    assert d["starts"][:, 1:].sum() > 2 * streams["starts"][:, 1:].sum()
+    with pytest.raises(ValueError, match="guided"):
+        MC.collect_streams(env, jax.random.PRNGKey(0), 4, 4, guided=1.5)
+    with pytest.raises(ValueError, match="guided"):
+        MC.MemoryTrainConfig(guided=-0.1)
+
+
 def test_late_mask_and_report_on_hand_made_streams():
     t = 30
     d = {
@@ -162,7 +178,9 @@ def test_memoryless_ablation_reads_each_frame_alone(model_and_params):
 
 
 def test_run_reports_settings_and_every_split(monkeypatch):
-    monkeypatch.setattr(MC, "collect_streams", lambda env, key, n, t: _fake_streams(n, t))
+    monkeypatch.setattr(
+        MC, "collect_streams", lambda env, key, n, t, guided=0.0: _fake_streams(n, t)
+    )
     report = MC.run(
         num_envs=4,
         num_steps=12,

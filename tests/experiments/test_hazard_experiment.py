@@ -88,7 +88,7 @@ def test_a_checker_of_the_other_kind_is_refused_by_name(tmp_path):
         phases.reuse_checker(cfg)
 
 
-def _fake_streams(env, key, n, t):
+def _fake_streams(env, key, n, t, guided=0.0):
     """Streams shaped as :func:`checker.memory.collect_streams`'s, without compiling the env."""
     rng = np.random.default_rng(int(jax.random.randint(key, (), 0, 2**31 - 1)))
     starts = np.zeros((n, t), bool)
