@@ -46,6 +46,10 @@ from jaxgrid.wrappers import BatchedAutoReset
 # mostly forward, doors opened and the key picked up now and then, never drop or done.
 BEHAVIOUR = (0.15, 0.15, 0.55, 0.075, 0.0, 0.075, 0.0)
 
+# What a frame's label says (:func:`relabel`): "next", the step out of the frame violates (the
+# paper's just-before label); "into", the step into the frame violated.
+LABELS = ("next", "into")
+
 
 @dataclasses.dataclass(frozen=True)
 class MemoryCheckerConfig:
@@ -177,6 +181,7 @@ class TrainedMemoryChecker(struct.PyTreeNode):
     config: MemoryCheckerConfig = struct.field(pytree_node=False)
     env_id: str = struct.field(pytree_node=False, default="")
     threshold: float = struct.field(pytree_node=False, default=0.5)
+    label: str = struct.field(pytree_node=False, default="next")  # one of LABELS
     kind = "memory"
 
     @property
@@ -230,6 +235,7 @@ def save(trained: TrainedMemoryChecker, directory) -> str:
         "config": dataclasses.asdict(trained.config),
         "env_id": trained.env_id,
         "threshold": trained.threshold,
+        "label": trained.label,
         "vocab": list(HL.VOCAB),
         "max_len": HL.MAX_LEN,
     }
@@ -245,7 +251,7 @@ def load(directory, meta: dict | None = None) -> TrainedMemoryChecker:
     params = read_params(directory, template, meta)
     return TrainedMemoryChecker(
         params=params, config=config, env_id=str(meta["env_id"]),
-        threshold=float(meta["threshold"]),
+        threshold=float(meta["threshold"]), label=str(meta.get("label", "next")),
     )  # fmt: skip
 
 
@@ -321,6 +327,22 @@ def collect_streams(
     return out
 
 
+def relabel(data: dict, label: str) -> dict:
+    """``data`` (:func:`collect_streams`) with ``label`` saying what a checker of that kind
+    learns: "next" (unchanged), whether the step out of the frame violates, the paper's
+    just-before label, which a learner turns into a penalty before the violation; "into",
+    whether the step into the frame violated (``violation``). A memory checker can tell the
+    latter from the frame and its memory alone, while the former also depends on the action
+    not yet taken; a shield, which scores the frame each candidate action leads to, asks the
+    latter. The episodes' final frames are not in the streams (the auto-reset replaces them),
+    so an "into" checker never sees a violation on an episode's last step."""
+    if label not in LABELS:
+        raise ValueError(f"label must be one of {LABELS}, got {label!r}")
+    if label == "next":
+        return data
+    return {**data, "label": data["violation"].astype(np.int32)}
+
+
 # ------------------------------------------------------------------------------- training
 
 
@@ -336,6 +358,7 @@ class MemoryTrainConfig:
     lr: float = 1e-3  # Adam step size
     positive_weight: float = 10.0  # violations are rare: weight their loss
     guided: float = 0.0  # share of the streams' actions taken from the oracle (collect_streams)
+    label: str = "next"  # what a frame's label says, one of LABELS (relabel)
     seed: int = 0
 
     def __post_init__(self):
@@ -349,6 +372,8 @@ class MemoryTrainConfig:
                 raise ValueError(f"{me}.{name} must be > 0, got {getattr(self, name)!r}")
         if not 0.0 <= self.guided <= 1.0:
             raise ValueError(f"{me}.guided must be in [0, 1], got {self.guided!r}")
+        if self.label not in LABELS:
+            raise ValueError(f"{me}.label must be one of {LABELS}, got {self.label!r}")
         if self.batch_streams > self.streams:
             raise ValueError(
                 f"{me}.batch_streams ({self.batch_streams}) exceeds {me}.streams ({self.streams})"
@@ -422,28 +447,31 @@ def predict_streams(params, config: MemoryCheckerConfig, data: dict, batch: int 
     return np.concatenate(out)
 
 
-def late_violation_mask(data: dict, late: int) -> np.ndarray:
+def late_violation_mask(data: dict, late: int, label: str = "next") -> np.ndarray:
     """bool ``(N, T)``: frames of the episodes whose first violation comes more than ``late``
     steps after their first costly event (a budget counted beyond a window of ``late``
-    frames). Streams begin with a reset, so every episode is seen from its start."""
-    starts, cost, label = data["starts"], data["cost"] > 0, data["label"] > 0
+    frames). Streams begin with a reset, so every episode is seen from its start. ``label``
+    says what ``data["label"]`` marks (:func:`relabel`)."""
+    shift = 1 if label == "next" else 0
+    starts, cost, labels = data["starts"], data["cost"] > 0, data["label"] > 0
     mask = np.zeros(starts.shape, bool)
     for e in range(starts.shape[0]):
         begins = [*np.flatnonzero(starts[e]), starts.shape[1]]
         for a, b in zip(begins[:-1], begins[1:], strict=False):
-            # frame t's cost is the step into it; its label is the step out of it (t + 1):
-            # labels, unlike ``violation``, keep the violation of an episode's final step
+            # frame t's cost is the step into it; a "next" label is the step out of it
+            # (t + 1): such labels, unlike ``violation``, keep an episode's final step
             first_cost = np.flatnonzero(cost[e, a:b])
-            first_violation = np.flatnonzero(label[e, a:b]) + 1
+            first_violation = np.flatnonzero(labels[e, a:b]) + shift
             if len(first_cost) and len(first_violation):
                 mask[e, a:b] = first_violation[0] - first_cost[0] > late
     return mask
 
 
-def evaluate_streams(probs, data: dict, late: int = 10) -> dict:
+def evaluate_streams(probs, data: dict, late: int = 10, label: str = "next") -> dict:
     """AUROC of ``probs`` against the labels: overall, per constraint type, on late budget
-    violations (:func:`late_violation_mask`) and on the budget frames whose next step costs
-    (``costly_budget``: is this entry one too many?), with the positive counts behind each."""
+    violations (:func:`late_violation_mask`) and on the budget frames whose labelled step
+    costs (``costly_budget``: is this entry one too many?), with the positive counts behind
+    each. ``label`` says what ``data["label"]`` marks (:func:`relabel`)."""
     y, valid = data["label"] > 0, data["valid"]
     report = {"auroc": auroc(y[valid], probs[valid]), "positives": int(y[valid].sum())}
     per_type = {}
@@ -452,15 +480,16 @@ def evaluate_streams(probs, data: dict, late: int = 10) -> dict:
         per_type[name] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
     report["per_type"] = per_type
     budget = data["ctype"] == HL.CONSTRAINT_TYPES.index("budget")
-    m = valid & budget & late_violation_mask(data, late)
+    m = valid & budget & late_violation_mask(data, late, label)
     report["late_budget"] = {
         "late": late,
         "auroc": auroc(y[m], probs[m]),
         "positives": int(y[m].sum()),
     }
-    # Counting itself: among budget frames whose next step costs, which ones exceed the
+    # Counting itself: among budget frames whose labelled step costs, which ones exceed the
     # budget? A checker that does not count cannot rank these (AUROC near 0.5).
-    m = valid & budget & (data["next_cost"] > 0)
+    step_cost = data["next_cost"] if label == "next" else data["cost"]
+    m = valid & budget & (step_cost > 0)
     report["costly_budget"] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
     return report
 
@@ -491,9 +520,11 @@ def run(
     data = collect_streams(
         jaxgrid.make(env_id), jax.random.PRNGKey(train.seed), num_envs, num_steps, train.guided
     )
+    data = relabel(data, train.label)
     params, losses = fit(data, config, train, "train memory checker" if progress else None)
     if out is not None:
-        save(TrainedMemoryChecker(params=params, config=config, env_id=env_id), out)
+        save(TrainedMemoryChecker(params=params, config=config, env_id=env_id,
+                                  label=train.label), out)  # fmt: skip
     report = {
         "env_id": env_id,
         "num_envs": num_envs,
@@ -508,7 +539,10 @@ def run(
         test = collect_streams(
             env, jax.random.PRNGKey(train.seed + 1000), num_envs, num_steps, train.guided
         )
-        report[split] = evaluate_streams(predict_streams(params, config, test), test, late)
+        test = relabel(test, train.label)
+        report[split] = evaluate_streams(
+            predict_streams(params, config, test), test, late, train.label
+        )
     report["wall_s"] = time.perf_counter() - t0
     return report
 
@@ -536,6 +570,10 @@ def main(argv=None) -> dict:
         "--guided", type=float, default=d.guided,
         help="share of actions taken from the oracle (half of the streams obeying, half not)",
     )
+    parser.add_argument(
+        "--label", choices=LABELS, default=d.label,
+        help="what a frame's label says: the step out of it violates (next), or the step into it",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--late", type=int, default=10, help="steps that make a violation late")
     parser.add_argument(
@@ -547,7 +585,8 @@ def main(argv=None) -> dict:
     if args.late < 1:
         parser.error(f"--late must be at least 1, got {args.late}")
     dests = {"streams": "envs", "steps": "steps", "updates": "updates",
-             "batch_streams": "batch_streams", "guided": "guided", "seed": "seed"}  # fmt: skip
+             "batch_streams": "batch_streams", "guided": "guided", "label": "label",
+             "seed": "seed"}  # fmt: skip
     try:  # the config checks the values; its messages are given in the flags' names
         train = MemoryTrainConfig(**{field: getattr(args, d) for field, d in dests.items()})
     except ValueError as e:

@@ -5,8 +5,10 @@ sentences have budgets or triggers (``HazardRooms-v0``) train a recurrent checke
 behaviour agent, windows and a window checker:
 
 * **data**: whole streams of the agents' own env (its sentences, auto-reset) under the random
-  behaviour policy :data:`checker.memory.BEHAVIOUR`, labelled by the ground-truth monitor one
-  step ahead (the step out of each frame violates);
+  behaviour policy :data:`checker.memory.BEHAVIOUR` (a share of the actions from the BFS
+  oracle with ``guided``), labelled by the ground-truth monitor: by default one step ahead
+  (the step out of each frame violates), with ``label="into"`` the step into each frame
+  (:func:`checker.memory.relabel`);
 * **checker**: :func:`checker.memory.train_memory_checker`, saved in ``DIR/checker/``;
 * **report**: on fresh streams of the same env (another key), the metrics of the window
   checker's report at the agents' ``checker_threshold``, and AUROC per constraint type, on
@@ -48,19 +50,21 @@ def train_memory_checker(cfg, out: Path):
     env = cfg.ppo.make_env()
     key = jax.random.PRNGKey(cfg.seed)
     data = memory.collect_streams(env, key, settings.streams, settings.steps, settings.guided)
+    data = memory.relabel(data, settings.label)
     config = memory.MemoryCheckerConfig(view_size=env.view_size)
     params, losses = memory.fit(data, config, settings, "c. memory checker" if cfg.progress
                                 else None)  # fmt: skip
     threshold = cfg.ppo.checker_threshold
     trained = memory.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
-                                          threshold=threshold)  # fmt: skip
+                                          threshold=threshold, label=settings.label)  # fmt: skip
     memory.save(trained, ckpt)
     test = memory.collect_streams(env, jax.random.fold_in(key, 1), settings.streams,
                                   settings.steps, settings.guided)  # fmt: skip
+    test = memory.relabel(test, settings.label)
     probs = memory.predict_streams(params, config, test)
     valid = test["valid"]
     metrics = {**binary_metrics(test["label"][valid], probs[valid], threshold),
-               **memory.evaluate_streams(probs, test)}  # fmt: skip
+               **memory.evaluate_streams(probs, test, label=settings.label)}  # fmt: skip
     report = {
         "kind": "memory",
         "test": _rates(metrics),  # undefined rates filled as the window checker's report does
@@ -68,7 +72,8 @@ def train_memory_checker(cfg, out: Path):
         "transfer": None,
         "details": {"test": metrics},
         "training": {"updates": settings.updates, "streams": settings.streams,
-                     "steps": settings.steps, "train_positives": int(data["label"].sum()),
+                     "steps": settings.steps, "label": settings.label,
+                     "guided": settings.guided, "train_positives": int(data["label"].sum()),
                      "final_loss": float(np.mean(losses[-50:]))},
         "params_sha256": params_sha256(ckpt),
     }  # fmt: skip

@@ -96,6 +96,42 @@ def test_guided_streams_follow_the_oracle_on_alternate_halves(streams):
         MC.MemoryTrainConfig(guided=-0.1)
 
 
+def test_into_labels_are_the_violation_of_the_step_into_each_frame(streams):
+    into = MC.relabel(streams, "into")
+    assert MC.relabel(streams, "next") is streams
+    np.testing.assert_array_equal(into["label"], streams["violation"])
+    assert into["label"].dtype == np.int32 and into["label"][streams["starts"]].sum() == 0
+    # the same violations, one frame later, except those on an episode's last step
+    inner = ~streams["starts"][:, 1:]
+    np.testing.assert_array_equal(into["label"][:, 1:][inner], streams["label"][:, :-1][inner])
+    with pytest.raises(ValueError, match="label must be one of"):
+        MC.relabel(streams, "before")
+    with pytest.raises(ValueError, match="label"):
+        MC.MemoryTrainConfig(label="before")
+
+
+def test_late_mask_and_report_read_into_labels_one_frame_later():
+    """The hand-made streams below, labelled on the frame after each violating step."""
+    t = 30
+    d = {
+        "starts": np.zeros((1, t), bool),
+        "cost": np.zeros((1, t)),
+        "label": np.zeros((1, t), np.int32),
+        "valid": np.ones((1, t), bool),
+        "ctype": np.full((1, t), 1),  # budget
+    }
+    d["starts"][0, 0] = True
+    d["cost"][0, [3, 13]] = 1  # the first costly step leads into frame 3, the 11th into 13
+    d["label"][0, 13] = 1  # ... and that one was one too many: 10 steps later, not late
+    d["next_cost"] = np.zeros((1, t))
+    assert not MC.late_violation_mask(d, late=10, label="into").any()
+    assert MC.late_violation_mask(d, late=10, label="next").all()  # read as frame 14
+    report = MC.evaluate_streams(np.where(d["cost"] > 0, 0.5, 0.0), d, 10, label="into")
+    assert report["costly_budget"] == {"auroc": 0.5, "positives": 1}
+    report = MC.evaluate_streams(d["label"] * 0.9, d, 10, label="into")
+    assert report["costly_budget"]["auroc"] == 1.0 and report["late_budget"]["auroc"] is None
+
+
 def test_late_mask_and_report_on_hand_made_streams():
     t = 30
     d = {
@@ -185,8 +221,9 @@ def test_run_reports_settings_and_every_split(monkeypatch):
         num_envs=4,
         num_steps=12,
         config=SMALL,
-        train=MC.MemoryTrainConfig(updates=2, batch_streams=2),
+        train=MC.MemoryTrainConfig(updates=2, batch_streams=2, label="into"),
     )
+    assert report["train_config"]["label"] == "into"
     assert report["train_config"]["updates"] == 2 and report[
         "checker_config"
     ] == dataclasses.asdict(SMALL)
@@ -216,10 +253,13 @@ def _fake_streams(n, t):
 def test_saved_memory_checker_loads_back_and_refuses_damage(tmp_path):
     import checker
 
-    trained = MC.new_memory_checker(SMALL, jax.random.PRNGKey(3), env_id="HazardRooms-v0")
+    trained = MC.new_memory_checker(
+        SMALL, jax.random.PRNGKey(3), env_id="HazardRooms-v0", label="into"
+    )
     MC.save(trained, tmp_path / "m")
     back = checker.load(tmp_path / "m")  # the one loader tells the two kinds apart
     assert isinstance(back, MC.TrainedMemoryChecker) and back.config == SMALL
+    assert back.label == "into"
     chex.assert_trees_all_equal(back.params, trained.params)
     params = tmp_path / "m" / "params.msgpack"
     params.write_bytes(params.read_bytes()[:-7])
