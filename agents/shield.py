@@ -7,10 +7,11 @@ candidate:
 * ``checker``: the trained checker's violation probability for the window that ends at the
   candidate observation (the last ``window - 1`` frames of the episode, then the candidate;
   for a memory checker, its memory of the episode advanced by the candidate);
-  an action is blocked where it exceeds ``threshold``. The checker is trained on just-before
-  labels, so a candidate is blocked when it leads to a state from which a violation is
-  expected next: the shield keeps the agent out of the states the ``checker`` reward mode
-  penalises.
+  an action is blocked where it exceeds ``threshold``. A checker trained on just-before labels
+  (the window checker's) blocks a candidate that leads to a state from which a violation is
+  expected next, keeping the agent out of the states the ``checker`` reward mode penalises;
+  a memory checker trained on the step into each frame (``label="into"``) blocks the
+  candidate step that it expects to violate, the monitor's question.
 * ``monitor``: the ground-truth monitor's violation flag of the candidate step (a perfect
   one-step judge, the reference the learned checker is measured against).
 

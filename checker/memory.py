@@ -357,8 +357,10 @@ class MemoryTrainConfig:
     batch_streams: int = 16  # streams per update
     lr: float = 1e-3  # Adam step size
     positive_weight: float = 10.0  # violations are rare: weight their loss
-    guided: float = 0.0  # share of the streams' actions taken from the oracle (collect_streams)
-    label: str = "next"  # what a frame's label says, one of LABELS (relabel)
+    guided: float = 0.0  # share of the actions from the BFS oracle (half the streams obey it)
+    # "next": the step out of each frame violates (the paper's just-before label); "into":
+    # the step into it did (what a shield asks of a candidate frame)
+    label: str = "next"
     seed: int = 0
 
     def __post_init__(self):

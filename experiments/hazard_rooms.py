@@ -9,7 +9,10 @@ the policy is recurrent (``PPOConfig(recurrent=True)``), so that both can count.
 episodic novelty bonus is 0.05 instead of the paper scenarios' 0.01: behind two closed doors
 the goal is too rare a find for a learner that is also penalised. It is capped at 60 bonuses
 an episode, and the goal pays those not yet earned (``novelty_claim``), so that touring the
-rooms never pays more than the goal (``docs/decisions.md``).
+rooms never pays more than the goal (``docs/decisions.md``). The memory checker labels each
+frame with the violation of the step into it (``label="into"``), not of the step out of it:
+a frame and the episode's memory determine the former, while the latter also depends on the
+action not yet taken, and a shield asks about the frame each candidate action leads to.
 Film codes and ``alarm_forward``, on in the paper scenarios, are off: they were measured on
 those scenarios' window checker, not on this one's memory checker. Every other setting, the
 outputs and the statistics are those of :mod:`experiments.pipeline`; ``--help`` lists the
@@ -29,7 +32,7 @@ SENTENCES = (
 
 SCENARIO = override(
     scenario("hazard_rooms", "HazardRooms-v0"),
-    dict(checker_kind="memory",
+    dict(checker_kind="memory", memory_checker=dict(label="into"),
          ppo=dict(env_kwargs=(("sentences", SENTENCES),), recurrent=True,
                   novelty_bonus=0.05, novelty_claim=60, film_codes=False,
                   alarm_forward=False)),

@@ -18,7 +18,7 @@ from jaxgrid import hazard_language as HL
 from jaxgrid.io import write_json
 
 MEMORY_FLAGS = {f"--memory-{n}" for n in ("streams", "steps", "updates", "batch-streams", "lr",
-                                          "positive-weight")}  # fmt: skip
+                                          "positive-weight", "guided", "label")}  # fmt: skip
 WINDOW_FLAGS = {"--behaviour-steps", "--checker-samples", "--checker-epochs", "--window",
                 "--lookahead"}  # fmt: skip
 
@@ -53,6 +53,9 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
                                alarm_forward=True)  # fmt: skip
     assert same == base
     assert cfg.memory_checker.seed == cfg.ppo.seed
+    # its checker learns the step into each frame; the window checkers' just-before label
+    assert cfg.memory_checker.label == "into"
+    assert preset(two_rooms.SCENARIO).memory_checker.label == "next"
     with pytest.raises(ValueError, match="ExperimentConfig.checker_kind must be one of"):
         dataclasses.replace(cfg, checker_kind="lstm")
 
@@ -63,6 +66,7 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
         (["--memory-updates", "0"], "--memory-updates must be an int >= 1, got 0"),
         (["--memory-streams", "4"], "--memory-batch-streams (8) exceeds --memory-streams (4)"),
         (["--memory-lr", "0"], "--memory-lr must be > 0"),
+        (["--memory-label", "before"], "--memory-label must be one of ('next', 'into')"),
     ],
 )
 def test_bad_memory_flags_are_usage_errors_before_any_compile(
