@@ -112,18 +112,9 @@ def test_into_labels_are_the_violation_of_the_step_into_each_frame(streams):
 
 def test_late_mask_and_report_read_into_labels_one_frame_later():
     """The hand-made streams below, labelled on the frame after each violating step."""
-    t = 30
-    d = {
-        "starts": np.zeros((1, t), bool),
-        "cost": np.zeros((1, t)),
-        "label": np.zeros((1, t), np.int32),
-        "valid": np.ones((1, t), bool),
-        "ctype": np.full((1, t), 1),  # budget
-    }
-    d["starts"][0, 0] = True
-    d["cost"][0, [3, 13]] = 1  # the first costly step leads into frame 3, the 11th into 13
-    d["label"][0, 13] = 1  # ... and that one was one too many: 10 steps later, not late
-    d["next_cost"] = np.zeros((1, t))
+    d = _budget_streams(1, 30)
+    d["cost"][0, [3, 13]] = 1  # costly steps lead into frames 3 and 13 ...
+    d["label"][0, 13] = 1  # ... and the second was one too many: 10 steps later, not late
     assert not MC.late_violation_mask(d, late=10, label="into").any()
     assert MC.late_violation_mask(d, late=10, label="next").all()  # read as frame 14
     report = MC.evaluate_streams(np.where(d["cost"] > 0, 0.5, 0.0), d, 10, label="into")
@@ -132,18 +123,23 @@ def test_late_mask_and_report_read_into_labels_one_frame_later():
     assert report["costly_budget"]["auroc"] == 1.0 and report["late_budget"]["auroc"] is None
 
 
-def test_late_mask_and_report_on_hand_made_streams():
-    t = 30
+def _budget_streams(n, t):
+    """``n`` hand-made budget streams of ``t`` frames, each one episode with nothing in it."""
     d = {
-        "starts": np.zeros((2, t), bool),
-        "cost": np.zeros((2, t)),
-        "violation": np.zeros((2, t), np.int32),
-        "label": np.zeros((2, t), np.int32),
-        "valid": np.ones((2, t), bool),
-        "ctype": np.full((2, t), 1),  # budget
-        "next_cost": np.zeros((2, t)),
+        "starts": np.zeros((n, t), bool),
+        "cost": np.zeros((n, t)),
+        "violation": np.zeros((n, t), np.int32),
+        "label": np.zeros((n, t), np.int32),
+        "valid": np.ones((n, t), bool),
+        "ctype": np.full((n, t), 1),  # budget
+        "next_cost": np.zeros((n, t)),
     }
     d["starts"][:, 0] = True
+    return d
+
+
+def test_late_mask_and_report_on_hand_made_streams():
+    d = _budget_streams(2, 30)
     d["starts"][1, 20] = True
     d["cost"][0, 3] = 1  # first costly event at step 3 ...
     d["label"][0, 17] = 1  # ... the violating step 18: 15 steps later
