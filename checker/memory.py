@@ -287,8 +287,6 @@ def collect_streams(
     wrapped = BatchedAutoReset(env)
     k_reset, k_run = jax.random.split(key)
     probs = jnp.asarray(BEHAVIOUR)
-    # Which streams' oracle obeys the constraint: alternate, so both halves are exact.
-    obey = jnp.arange(num_envs) % 2 == 0
 
     @jax.jit
     def run(k_reset, k_run):
@@ -298,6 +296,7 @@ def collect_streams(
             states, ts, start = carry
             actions = jax.random.choice(k, len(BEHAVIOUR), (num_envs,), p=probs)
             if guided > 0:  # static: without guidance the streams are drawn as before
+                obey = jnp.arange(num_envs) % 2 == 0  # alternate streams obey the constraint
                 expert = jax.vmap(
                     lambda s, o: oracle_action(s, obey_constraint=o, avoid_lava=o)
                 )(states, obey)
