@@ -278,6 +278,10 @@ def reuse_checker(cfg):
     if kind == "window" and trained.config.window != window:
         raise ValueError(f"--checker {path}: window {trained.config.window} != --window "
                          f"{window}")  # fmt: skip
+    label = cfg.memory_checker.label  # what a shield and a penalty read from its alarms
+    if kind == "memory" and trained.label != label:
+        raise ValueError(f"--checker {path}: label {trained.label!r} != --memory-label "
+                         f"{label!r}")  # fmt: skip
     digest = params_sha256(path)
     found = [path / name for name in ("report.json", "metrics.json") if (path / name).exists()]
     if not found:

@@ -75,10 +75,11 @@ def test_bad_memory_flags_are_usage_errors_before_any_compile(
     refused_before_any_compile(hazard_rooms, tmp_path / "run", argv, message, capsys, compiles)
 
 
-def _saved_memory_checker(directory):
+def _saved_memory_checker(directory, label="next"):
     small = MC.MemoryCheckerConfig(word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4,
                                    state_dim=8, memory_dim=16, mlp_dim=16)  # fmt: skip
-    trained = MC.new_memory_checker(small, jax.random.PRNGKey(0), env_id="HazardRooms-v0")
+    trained = MC.new_memory_checker(small, jax.random.PRNGKey(0), env_id="HazardRooms-v0",
+                                    label=label)  # fmt: skip
     MC.save(trained, directory)
     return trained
 
@@ -89,6 +90,15 @@ def test_a_checker_of_the_other_kind_is_refused_by_name(tmp_path):
     cfg = dataclasses.replace(cfg, checker=str(tmp_path / "memory"), out=str(tmp_path / "o"))
     with pytest.raises(ValueError, match="a memory checker, and two_rooms trains its agents "
                                          "with a window checker"):  # fmt: skip
+        phases.reuse_checker(cfg)
+
+
+def test_a_memory_checker_of_the_other_label_is_refused_by_name(tmp_path):
+    """A just-before checker would make HazardRooms' shield block other actions."""
+    _saved_memory_checker(tmp_path / "next")
+    cfg = preset(hazard_rooms.SCENARIO, "quick")
+    cfg = dataclasses.replace(cfg, checker=str(tmp_path / "next"), out=str(tmp_path / "o"))
+    with pytest.raises(ValueError, match="label 'next' != --memory-label 'into'"):
         phases.reuse_checker(cfg)
 
 
