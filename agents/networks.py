@@ -56,18 +56,25 @@ def one_hot_cells(image: jax.Array) -> jax.Array:
 
 
 class PatchConv(nn.Module):
-    """A 2-D convolution (``VALID``, stride 1) computed as one dense matmul.
+    """A 2-D convolution (``VALID``, stride 1) computed as dense matmuls.
 
     Same parameters and result as ``nn.Conv(features, (k, k), padding="VALID")``. The kernel
-    is unrolled into an ``(H*W*C, OH*OW*features)`` matrix through a constant 0/1 tensor of
-    tap positions, so the layer is one matmul on the flattened input, forward and backward:
-    on XLA:CPU that is faster than a convolution inside PPO's minibatch ``lax.scan``
-    (figures in ``docs/decisions.md``).
+    is unrolled through constant 0/1 tensors of tap positions, so the layer is matmuls on
+    the flattened input, forward and backward: on XLA:CPU that is faster than a convolution
+    inside PPO's minibatch ``lax.scan``. Two forms (``form``):
+
+    - ``"dense"``: one ``(H*W*C, OH*OW*features)`` matrix over the whole view;
+    - ``"rows"``: each output row from the ``k`` input rows it reads, concatenated, times one
+      ``(k*W*C, OW*features)`` matrix: ``H / k`` times fewer multiply-adds, one copy more.
+
+    ``"auto"`` takes ``"rows"`` for views of 7 rows or more and ``"dense"`` below, the faster
+    of the two in a whole PPO update at 7x7 and 5x5 views (figures in ``docs/decisions.md``).
     """
 
     features: int
     kernel_size: int = 3
     kernel_init: Any = nn.initializers.lecun_normal()
+    form: str = "auto"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
@@ -75,10 +82,20 @@ class PatchConv(nn.Module):
         kernel = self.param("kernel", self.kernel_init, (k, k, c_in, self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
         oh, ow = h - k + 1, w - k + 1
-        taps = _conv_taps(h, w, k)  # (k*k, h*w, oh*ow), numpy constant
-        dense = jnp.einsum("tqp,tco->qcpo", taps, kernel.reshape(k * k, c_in, self.features))
-        dense = dense.reshape(h * w * c_in, oh * ow * self.features)
-        y = x.reshape(x.shape[:-3] + (h * w * c_in,)) @ dense
+        form = ("rows" if h >= 7 else "dense") if self.form == "auto" else self.form
+        if form == "dense":
+            taps = _conv_taps(h, w, k)  # (k*k, h*w, oh*ow), numpy constant
+            dense = jnp.einsum("tqp,tco->qcpo", taps, kernel.reshape(k * k, c_in, self.features))
+            dense = dense.reshape(h * w * c_in, oh * ow * self.features)
+            y = x.reshape(x.shape[:-3] + (h * w * c_in,)) @ dense
+        elif form == "rows":
+            taps = _row_taps(w, k)  # (k, w, ow), numpy constant
+            dense = jnp.einsum("jqp,ijco->iqcpo", taps, kernel)
+            dense = dense.reshape(k * w * c_in, ow * self.features)
+            rows = x.reshape(x.shape[:-3] + (h, w * c_in))
+            y = jnp.concatenate([rows[..., i : i + oh, :] for i in range(k)], -1) @ dense
+        else:
+            raise ValueError(f"PatchConv.form must be 'auto', 'dense' or 'rows', got {form!r}")
         return y.reshape(x.shape[:-3] + (oh, ow, self.features)) + bias
 
 
@@ -92,6 +109,18 @@ def _conv_taps(h: int, w: int, k: int) -> np.ndarray:
             for y in range(oh):
                 for x in range(ow):
                     taps[i * k + j, (y + i) * w + (x + j), y * ow + x] = 1.0
+    return taps
+
+
+@functools.cache
+def _row_taps(w: int, k: int) -> np.ndarray:
+    """``taps[j, q, p] = 1`` where kernel column ``j`` reads input column ``q`` for output
+    column ``p`` (one row of :func:`_conv_taps`)."""
+    ow = w - k + 1
+    taps = np.zeros((k, w, ow), np.float32)
+    for j in range(k):
+        for x in range(ow):
+            taps[j, x + j, x] = 1.0
     return taps
 
 

@@ -1,4 +1,5 @@
-"""``agents.networks``: the matmul convolution equals flax's ``VALID`` convolution."""
+"""``agents.networks``: the matmul convolutions equal flax's ``VALID`` convolution, the split
+memory flax's ``GRUCell``."""
 
 from __future__ import annotations
 
@@ -10,13 +11,44 @@ import pytest
 from agents.networks import PatchConv
 
 
-@pytest.mark.parametrize("shape", [(4, 5, 5, 8), (2, 7, 6, 3)])
-def test_patch_conv_equals_flax_conv(shape):
+@pytest.mark.parametrize("form", ["auto", "dense", "rows"])
+@pytest.mark.parametrize("shape", [(4, 5, 5, 8), (2, 7, 6, 3), (3, 7, 7, 8)])
+def test_patch_conv_equals_flax_conv(shape, form):
     x = jax.random.normal(jax.random.PRNGKey(0), shape)
     params = PatchConv(16).init(jax.random.PRNGKey(1), x)
-    ours = PatchConv(16).apply(params, x)
+    ours = PatchConv(16, form=form).apply(params, x)
     ref = nn.Conv(16, (3, 3), padding="VALID").apply(params, x)
     np.testing.assert_allclose(ours, ref, rtol=1e-5, atol=1e-5)
+    grad = lambda f: jax.grad(lambda p: (f(p) ** 2).sum())(params)  # noqa: E731
+    ours_grad = grad(lambda p: PatchConv(16, form=form).apply(p, x))
+    ref_grad = grad(lambda p: nn.Conv(16, (3, 3), padding="VALID").apply(p, x))
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-4),
+                 ours_grad, ref_grad)  # fmt: skip
+
+
+def test_patch_conv_refuses_an_unknown_form():
+    x = np.zeros((1, 5, 5, 2), np.float32)
+    with pytest.raises(ValueError, match="'cols'"):
+        PatchConv(4, form="cols").init(jax.random.PRNGKey(0), x)
+
+
+def test_recurrent_heads_are_flax_gru_cell():
+    """The memory's split form (input terms for a whole sequence, one recurrent matmul per
+    step) computes flax's ``GRUCell`` with the same parameters, under its names."""
+    from agents.networks import ActorCritic
+
+    net = ActorCritic(recurrent=True)
+    image, direction = np.zeros((3, 7, 7, 3), np.uint8), np.zeros((3,), np.int32)
+    params = net.init(jax.random.key(0), image, direction, np.zeros((1, 13), np.int32),
+                      method=ActorCritic.init_all)  # fmt: skip
+    h, memory = jax.random.normal(jax.random.key(1), (2, 3, net.hidden))
+    ours = net.apply(params, h, memory, method=ActorCritic.heads)
+    gru = {"params": params["params"]["core"]}
+    ref_memory = nn.GRUCell(net.hidden).apply(gru, memory, h)[0]
+    np.testing.assert_allclose(ours[3], ref_memory, rtol=1e-5, atol=1e-6)
+    ref_heads = net.apply(params, ref_memory, method=ActorCritic.read)
+    for a, b in zip(ours[:3], ref_heads, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
 
 
 def test_film_codes_weigh_each_code_and_change_nothing_when_off():
