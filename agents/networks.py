@@ -242,9 +242,38 @@ class ActorCritic(nn.Module):
     def heads(self, h, memory):
         """``(logits, value, cost_value, memory)`` from :meth:`observe`'s features."""
         if self.recurrent:
-            memory, h = self.core(memory, h)
+            memory = self.remember(self.memory_inputs(h), memory)
+            h = memory
+        return self.read(h) + (memory,)
+
+    def memory_inputs(self, h):
+        """The memory's input terms (..., 3 * hidden) of :meth:`observe`'s features: the GRU's
+        reset, update and candidate pre-activations before the memory's share is added. They
+        do not depend on the memory, so a recurrent update computes them for a whole sequence
+        at once and only :meth:`remember` runs step by step."""
+        if self.is_initializing():  # the parameters of flax's GRUCell, under its names
+            self.core(jnp.zeros(h.shape[:-1] + (self.hidden,), h.dtype), h)
+        core = self.variables["params"]["core"]
+        gates = ("ir", "iz", "in")
+        kernel = jnp.concatenate([core[g]["kernel"] for g in gates], -1)
+        return h @ kernel + jnp.concatenate([core[g]["bias"] for g in gates], -1)
+
+    def remember(self, inputs, memory):
+        """The next memory (..., hidden) from :meth:`memory_inputs` and the memory: flax's
+        ``GRUCell`` with its three recurrent matmuls as one."""
+        core = self.variables["params"]["core"]
+        kernel = jnp.concatenate([core[g]["kernel"] for g in ("hr", "hz", "hn")], -1)
+        r, z, n = jnp.split(inputs, 3, axis=-1)
+        hr, hz, hn = jnp.split(memory @ kernel, 3, axis=-1)
+        r, z = nn.sigmoid(r + hr), nn.sigmoid(z + hz)
+        n = jnp.tanh(n + r * (hn + core["hn"]["bias"]))
+        return (1.0 - z) * n + z * memory
+
+    def read(self, h):
+        """``(logits, value, cost_value)`` from the memory (recurrent) or :meth:`observe`'s
+        features."""
         h = jnp.tanh(self.mix(h))
-        return self.actor(h), self.critic(h)[..., 0], self.cost_critic(h)[..., 0], memory
+        return self.actor(h), self.critic(h)[..., 0], self.cost_critic(h)[..., 0]
 
     def sentence_features(self, tokens: jax.Array) -> jax.Array:
         """Tokens -> the ``lang`` input of :meth:`__call__` (GRU, then projection)."""

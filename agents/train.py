@@ -109,8 +109,8 @@ class Learner(struct.PyTreeNode):
         if not self.config.recurrent:
             memory = start_memory(self.network, mb["image"].shape[0])
             return self.policy(params)(mb["image"], mb["direction"], mb["sentence"], memory)[:3]
-        # The observation features of every step at once (one batched pass); only the memory
-        # and the heads run step by step.
+        # The observation features and the memory's input terms of every step at once (batched
+        # passes); only the memory runs step by step, the heads again batched.
         lang_table = self.lang_table(params)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
         rows = flat(mb["sentence"])
@@ -120,16 +120,16 @@ class Learner(struct.PyTreeNode):
             params, flat(mb["image"]), flat(mb["direction"]), lang, method=ActorCritic.observe
         ).reshape(mb["sentence"].shape + (-1,))
 
-        def one(memory, x):
-            h, start = x
-            memory = jnp.where(start[:, None], 0.0, memory)
-            logits, value, cost_value, memory = net.apply(
-                params, h, memory, method=ActorCritic.heads
-            )
-            return memory, (logits, value, cost_value)
+        inputs = net.apply(params, feats, method=ActorCritic.memory_inputs)
 
-        _, out = lax.scan(one, mb["memory0"], (feats, mb["start"]))
-        return jax.tree.map(flat, out)
+        def one(memory, x):
+            inputs, start = x
+            memory = jnp.where(start[:, None], 0.0, memory)
+            memory = net.apply(params, inputs, memory, method=ActorCritic.remember)
+            return memory, memory
+
+        _, memories = lax.scan(one, mb["memory0"], (inputs, mb["start"]))
+        return net.apply(params, flat(memories), method=ActorCritic.read)
 
     def constraint_ramp(self, update: jax.Array) -> jax.Array:
         """How far the constraint is switched on at update ``update`` (0-based): 0 for the
