@@ -138,6 +138,9 @@ class PPOConfig:
     # the sentence also scales each view cell's one-hot object, colour and state codes before
     # they are embedded, so that it can weigh one colour against the others directly
     film_codes: bool = False
+    # a recurrent policy's heads read the step's observation features beside the memory,
+    # not only through the GRU's gated update
+    memory_skip: bool = False
 
     def __post_init__(self):
         try:  # a dict or pairs -> sorted pairs, so that the config stays hashable
@@ -203,6 +206,8 @@ class PPOConfig:
         dim = self.cell_dim
         if isinstance(dim, bool) or not isinstance(dim, int | np.integer) or dim < 1:
             raise ValueError(f"PPOConfig.cell_dim must be a positive int, got {dim!r}")
+        if self.memory_skip and not self.recurrent:
+            raise ValueError("PPOConfig.memory_skip needs recurrent=True: it skips the memory")
         if self.reward_mode not in REWARD_MODES:
             raise ValueError(
                 f"PPOConfig.reward_mode must be one of {REWARD_MODES}, got {self.reward_mode!r}"

@@ -172,6 +172,8 @@ class ActorCritic(nn.Module):
     recurrent: bool = False  # a GRU memory between the observation and the heads
     # the sentence also scales each cell's one-hot object, colour and state codes
     film_codes: bool = False
+    # the heads read the observation features beside the memory (recurrent only)
+    memory_skip: bool = False
 
     def setup(self):
         relu_init = _ortho(np.sqrt(2))
@@ -243,8 +245,7 @@ class ActorCritic(nn.Module):
         """``(logits, value, cost_value, memory)`` from :meth:`observe`'s features."""
         if self.recurrent:
             memory = self.remember(self.memory_inputs(h), memory)
-            h = memory
-        return self.read(h) + (memory,)
+        return self.read(h, memory) + (memory,)
 
     def memory_inputs(self, h):
         """The memory's input terms (..., 3 * hidden) of :meth:`observe`'s features: the GRU's
@@ -269,9 +270,13 @@ class ActorCritic(nn.Module):
         n = jnp.tanh(n + r * (hn + core["hn"]["bias"]))
         return (1.0 - z) * n + z * memory
 
-    def read(self, h):
-        """``(logits, value, cost_value)`` from the memory (recurrent) or :meth:`observe`'s
-        features."""
+    def read(self, h, memory=None):
+        """``(logits, value, cost_value)`` from :meth:`observe`'s features ``h`` and, in a
+        recurrent network, the memory after this step: the heads read the memory, and with
+        ``memory_skip`` the features beside it, so that what is in view reaches the action
+        without passing the GRU's update gate."""
+        if self.recurrent:
+            h = jnp.concatenate([memory, h], -1) if self.memory_skip else memory
         h = jnp.tanh(self.mix(h))
         return self.actor(h), self.critic(h)[..., 0], self.cost_critic(h)[..., 0]
 

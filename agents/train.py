@@ -129,7 +129,7 @@ class Learner(struct.PyTreeNode):
             return memory, memory
 
         _, memories = lax.scan(one, mb["memory0"], (inputs, mb["start"]))
-        return net.apply(params, flat(memories), method=ActorCritic.read)
+        return net.apply(params, flat(feats), flat(memories), method=ActorCritic.read)
 
     def constraint_ramp(self, update: jax.Array) -> jax.Array:
         """How far the constraint is switched on at update ``update`` (0-based): 0 for the
@@ -453,6 +453,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
             vocab_size=getattr(env, "language", language).vocab_size(),
             recurrent=config.recurrent,
             film_codes=config.film_codes,
+            memory_skip=config.memory_skip,
         ),
         optimizer=optimizer,
         checker=checker,

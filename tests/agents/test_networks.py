@@ -46,7 +46,7 @@ def test_recurrent_heads_are_flax_gru_cell():
     gru = {"params": params["params"]["core"]}
     ref_memory = nn.GRUCell(net.hidden).apply(gru, memory, h)[0]
     np.testing.assert_allclose(ours[3], ref_memory, rtol=1e-5, atol=1e-6)
-    ref_heads = net.apply(params, ref_memory, method=ActorCritic.read)
+    ref_heads = net.apply(params, h, ref_memory, method=ActorCritic.read)
     for a, b in zip(ours[:3], ref_heads, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
 
@@ -86,3 +86,31 @@ def test_film_codes_weigh_each_code_and_change_nothing_when_off():
     assert v[0] == v[1]
     v = values(np.zeros(sum(_SIZES), np.float32))
     assert abs(v[0] - v[1]) > 1e-6
+
+
+def test_memory_skip_lets_the_heads_read_the_view():
+    """With ``memory_skip`` the heads read the observation features beside the memory: with
+    the same memory, two views give different logits even where the GRU's output is the same
+    (the memory carried through unchanged). Without it they cannot."""
+    from agents.networks import ActorCritic
+
+    image, direction = np.zeros((1, 7, 7, 3), np.uint8), np.zeros((1,), np.int32)
+    tokens = np.zeros((1, 13), np.int32)
+    for skip in (False, True):
+        net = ActorCritic(recurrent=True, memory_skip=skip)
+        params = net.init(jax.random.key(0), image, direction, tokens,
+                          method=ActorCritic.init_all)  # fmt: skip
+        width = net.hidden * (2 if skip else 1)
+        assert params["params"]["mix"]["kernel"].shape == (width, net.hidden)
+        memory = jax.random.normal(jax.random.key(1), (1, net.hidden))
+        h1, h2 = jax.random.normal(jax.random.key(2), (2, 1, net.hidden))
+        logits = [net.apply(params, h, memory, method=ActorCritic.read)[0] for h in (h1, h2)]
+        assert (np.abs(logits[0] - logits[1]).max() > 1e-6) == skip
+
+
+def test_memory_skip_needs_a_memory():
+    from agents.config import PPOConfig
+
+    with pytest.raises(ValueError, match="memory_skip needs recurrent=True"):
+        PPOConfig(memory_skip=True)
+    assert PPOConfig(recurrent=True, memory_skip=True).memory_skip
