@@ -89,7 +89,8 @@ class PatchConv(nn.Module):
             dense = dense.reshape(h * w * c_in, oh * ow * self.features)
             y = x.reshape(x.shape[:-3] + (h * w * c_in,)) @ dense
         elif form == "rows":
-            taps = _row_taps(w, k)  # (k, w, ow), numpy constant
+            # kernel row 0's taps over a k-row input: column j reads input column p + j
+            taps = _conv_taps(k, w, k)[:k, :w]  # (k, w, ow), numpy constant
             dense = jnp.einsum("jqp,ijco->iqcpo", taps, kernel)
             dense = dense.reshape(k * w * c_in, ow * self.features)
             rows = x.reshape(x.shape[:-3] + (h, w * c_in))
@@ -109,18 +110,6 @@ def _conv_taps(h: int, w: int, k: int) -> np.ndarray:
             for y in range(oh):
                 for x in range(ow):
                     taps[i * k + j, (y + i) * w + (x + j), y * ow + x] = 1.0
-    return taps
-
-
-@functools.cache
-def _row_taps(w: int, k: int) -> np.ndarray:
-    """``taps[j, q, p] = 1`` where kernel column ``j`` reads input column ``q`` for output
-    column ``p`` (one row of :func:`_conv_taps`)."""
-    ow = w - k + 1
-    taps = np.zeros((k, w, ow), np.float32)
-    for j in range(k):
-        for x in range(ow):
-            taps[j, x + j, x] = 1.0
     return taps
 
 
