@@ -65,7 +65,9 @@ class PPOConfig:
 
     ``novelty_bonus`` (0: off) adds an episodic exploration bonus to the training reward
     whenever a step reaches a (cell, carrying or not) pair not yet visited in the episode,
-    annealed linearly to 0 over the first ``novelty_anneal`` of training (then 0). With
+    annealed linearly to 0 over the first ``novelty_anneal`` of training (then 0); with
+    ``novelty_carrying`` False a new cell, whatever is carried (picking up an object and
+    walking the same room again then pays nothing). With
     ``novelty_changes`` it also pays for the first change of each grid cell in the episode
     (a door opened or unlocked, an object picked up or dropped): the cell of a door that
     opens is not new, but what lies behind it is. With ``novelty_claim`` K > 0 an episode is
@@ -120,6 +122,8 @@ class PPOConfig:
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
     novelty_bonus: float = 0.0  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
+    # the bonus pays for (cell, carrying) pairs; False: for cells, whatever is carried
+    novelty_carrying: bool = True
     novelty_anneal: float = 1.0  # fraction of the run over which the bonus falls to 0
     # the most bonuses an episode earns (0: no cap); reaching the goal pays what is left
     novelty_claim: int = 0

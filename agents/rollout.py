@@ -95,17 +95,24 @@ def _rows(mask: jax.Array, x: jax.Array) -> jax.Array:
 
 
 def visits(
-    states, width: int, height: int, enabled: bool, changes: bool = False, before=None
+    states,
+    width: int,
+    height: int,
+    enabled: bool,
+    changes: bool = False,
+    before=None,
+    carrying: bool = True,
 ) -> jax.Array:
     """bool (E, W*H*2): one-hot of each env's (cell, carrying or not) for the novelty bonus;
-    (E, 1) False when the bonus is off, so that nothing is paid for it. With ``changes``,
+    (E, 1) False when the bonus is off, so that nothing is paid for it. With ``carrying``
+    False every pair is read as not carrying: the bonus pays for cells only. With ``changes``,
     (E, W*H) more columns: the cells whose contents differ from ``before`` (the states before
     the step; None at an episode's start, where nothing has changed yet)."""
     if not enabled:
         return jnp.zeros((states.agent_pos.shape[0], 1), bool)
     x, y = states.agent_pos[:, 0], states.agent_pos[:, 1]
-    carrying = (states.carrying[:, 0] != EMPTY).astype(jnp.int32)
-    cell = (x * height + y) * 2 + carrying
+    held = (states.carrying[:, 0] != EMPTY).astype(jnp.int32) if carrying else 0
+    cell = (x * height + y) * 2 + held
     hit = cell[:, None] == jnp.arange(width * height * 2)
     if not changes:
         return hit
@@ -223,7 +230,8 @@ def env_step(
     # for the first time in it). Where the episode ended, ``states`` is the next episode's
     # start, whose visit opens a new set with nothing changed yet.
     hit = visits(
-        states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes, carry.state
+        states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes, carry.state,
+        carrying=c.novelty_carrying,
     )
     new = jnp.where(done, 0.0, novel(carry.visited, hit, env.width, env.height))
     if c.novelty_claim:  # at most K bonuses per episode; the goal pays those not yet earned

@@ -198,7 +198,8 @@ class Learner(struct.PyTreeNode):
         carry = EnvCarry(
             state=states, obs=obs, sentence=sentence,
             frames=frames, visited=rollout.visits(states, env.width, env.height,
-                                                  c.novelty_bonus != 0, c.novelty_changes),
+                                                  c.novelty_bonus != 0, c.novelty_changes,
+                                                  carrying=c.novelty_carrying),
             ep_return=zeros, ep_length=zeros.astype(jnp.int32), alarmed=zeros > 0,
             memory=start_memory(self.network, c.num_envs),
         )  # fmt: skip

@@ -180,15 +180,21 @@ def test_checker_and_shaped_rewards(rollouts):
         assert np.abs(bootstrap).max() > 1e-3
 
 
-@pytest.mark.parametrize("changes", [False, True], ids=["visits", "visits_and_changes"])
-def test_novelty_bonus_pays_first_visits_per_episode(rollouts, changes):
+@pytest.mark.parametrize(
+    "changes,carrying",
+    [(False, True), (True, True), (False, False)],
+    ids=["visits", "visits_and_changes", "cells_only"],
+)
+def test_novelty_bonus_pays_first_visits_per_episode(rollouts, changes, carrying):
     """The bonus is the reward difference against the same rollout without it (the shaped
     learner of ``rollouts``: same params and keys, so the same actions), and equals a host
     replay of episodic first visits (and, with ``novelty_changes``, first changes of a
-    cell)."""
+    cell; without ``novelty_carrying``, of cells whatever is carried)."""
     runner, out = rollouts
     plain, tr0, _, _ = out["shaped"]
-    config = dataclasses.replace(plain.config, novelty_bonus=0.5, novelty_changes=changes)
+    config = dataclasses.replace(
+        plain.config, novelty_bonus=0.5, novelty_changes=changes, novelty_carrying=carrying
+    )
     bonus = make_learner(config)
     tr1, carry1 = step_by_step(bonus, fast_jit(bonus.init)(jax.random.PRNGKey(3)))
     np.testing.assert_array_equal(tr0.action, tr1.action)
@@ -197,7 +203,7 @@ def test_novelty_bonus_pays_first_visits_per_episode(rollouts, changes):
     def visit(state, t, e):
         x, y = state.agent_pos[t, e] if t is not None else state.agent_pos[e]
         carrying = state.carrying[t, e, 0] if t is not None else state.carrying[e, 0]
-        return int(x), int(y), bool(carrying != 1)
+        return int(x), int(y), bool(carrying != 1) and config.novelty_carrying
 
     start = jax.device_get(runner.env.state)
     grids = np.concatenate([start.grid[None], carry1.state.grid])  # (T + 1, E, W, H, 3)
@@ -276,6 +282,19 @@ def test_novelty_changes_pay_each_cell_once_per_episode():
     np.testing.assert_array_equal(rollout.novel(seen, again, w, h), [0.0, 0.0])
     off = rollout.visits(door, w, h, False, True, before=state)
     np.testing.assert_array_equal(rollout.novel(off[:, :1], off, w, h), [0.0, 0.0])
+
+
+def test_novelty_without_carrying_pays_cells_only():
+    """With ``carrying=False`` (``PPOConfig.novelty_carrying``) a cell walked again with an
+    object in hand is not new; with the default (cell, carrying) pairs it is."""
+    env = TINY.make_env()
+    w, h = env.width, env.height
+    state, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+    held = state.replace(carrying=state.carrying.at[0].set(jnp.array([5, 4, 0], jnp.uint8)))
+    for carrying, expected in ((True, [1.0, 0.0]), (False, [0.0, 0.0])):
+        seen = rollout.visits(state, w, h, True, carrying=carrying)
+        hit = rollout.visits(held, w, h, True, carrying=carrying)  # env 0 picked up a key
+        np.testing.assert_array_equal(rollout.novel(seen, hit, w, h), expected)
 
 
 def test_terminal_step_on_the_time_limit_is_not_bootstrapped():
