@@ -9,7 +9,9 @@ the policy is recurrent (``PPOConfig(recurrent=True)``), so that both can count.
 episodic novelty bonus is 0.05 instead of the paper scenarios' 0.01: behind two closed doors
 the goal is too rare a find for a learner that is also penalised. It is capped at 60 bonuses
 an episode, and the goal pays those not yet earned (``novelty_claim``), so that touring the
-rooms never pays more than the goal (``docs/decisions.md``). The memory checker labels each
+rooms never pays more than the goal, and it pays for new cells, not new (cell, carrying)
+pairs (``novelty_carrying=False``): with the key in hand the first room would pay twice, and
+agents stayed in it (``docs/decisions.md``). The memory checker labels each
 frame with the violation of the step into it (``label="into"``), not of the step out of it:
 a frame and the episode's memory determine the former, while the latter also depends on the
 action not yet taken, and a shield asks about the frame each candidate action leads to.
@@ -34,8 +36,8 @@ SCENARIO = override(
     scenario("hazard_rooms", "HazardRooms-v0"),
     dict(checker_kind="memory", memory_checker=dict(label="into"),
          ppo=dict(env_kwargs=(("sentences", SENTENCES),), recurrent=True,
-                  novelty_bonus=0.05, novelty_claim=60, film_codes=False,
-                  alarm_forward=False)),
+                  novelty_bonus=0.05, novelty_claim=60, novelty_carrying=False,
+                  film_codes=False, alarm_forward=False)),
 )  # fmt: skip
 
 if __name__ == "__main__":

@@ -44,13 +44,15 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
     base = preset(two_rooms.SCENARIO).ppo
     assert cfg.ppo.novelty_bonus == 0.05 > base.novelty_bonus
     assert cfg.ppo.novelty_claim == 60 and base.novelty_claim == 0
+    # the bonus pays for cells here, for (cell, carrying) pairs in the paper's scenarios
+    assert not cfg.ppo.novelty_carrying and base.novelty_carrying
     # film codes and alarm-forward, measured with the window checker only, stay off here
     assert base.film_codes and base.alarm_forward
     assert not cfg.ppo.film_codes and not cfg.ppo.alarm_forward
     # Every other PPO setting is the paper scenarios' one.
     same = dataclasses.replace(cfg.ppo, env_id=base.env_id, env_kwargs=(), recurrent=False,
                                novelty_bonus=base.novelty_bonus, novelty_claim=0, film_codes=True,
-                               alarm_forward=True)  # fmt: skip
+                               alarm_forward=True, novelty_carrying=True)  # fmt: skip
     assert same == base
     assert cfg.memory_checker.seed == cfg.ppo.seed
     # its checker learns the step into each frame; the window checkers' just-before label
