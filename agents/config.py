@@ -65,9 +65,9 @@ class PPOConfig:
 
     ``novelty_bonus`` (0: off) adds an episodic exploration bonus to the training reward
     whenever a step reaches a (cell, carrying or not) pair not yet visited in the episode,
-    annealed linearly to 0 over the first ``novelty_anneal`` of training (then 0); with
-    ``novelty_carrying`` False a new cell, whatever is carried (picking up an object and
-    walking the same room again then pays nothing). With
+    annealed linearly to 0 over the first ``novelty_anneal`` of training (then 0). With
+    ``novelty_carrying`` False it pays for new cells, whatever is carried: picking up an
+    object and walking the same room again then pays nothing. With
     ``novelty_changes`` it also pays for the first change of each grid cell in the episode
     (a door opened or unlocked, an object picked up or dropped): the cell of a door that
     opens is not new, but what lies behind it is. With ``novelty_claim`` K > 0 an episode is
