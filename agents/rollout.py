@@ -124,6 +124,15 @@ def visits(
     return jnp.concatenate([hit, changed], axis=1)
 
 
+def config_visits(states, env, c, before=None) -> jax.Array:
+    """:func:`visits` with the novelty settings of the PPO config ``c``: the learner's start
+    and every step ask it the same way."""
+    return visits(
+        states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes, before,
+        carrying=c.novelty_carrying,
+    )
+
+
 def novel(visited: jax.Array, hit: jax.Array, width: int, height: int) -> jax.Array:
     """float32 (E,): how many of this step's ``hit`` (:func:`visits`) are new to the episode's
     ``visited``: the (cell, carrying) pair (0 or 1), plus the changed cells not changed
@@ -229,10 +238,7 @@ def env_step(
     # Novelty: the step reached a (cell, carrying) pair new to this episode (or changed a cell
     # for the first time in it). Where the episode ended, ``states`` is the next episode's
     # start, whose visit opens a new set with nothing changed yet.
-    hit = visits(
-        states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes, carry.state,
-        carrying=c.novelty_carrying,
-    )
+    hit = config_visits(states, env, c, carry.state)
     new = jnp.where(done, 0.0, novel(carry.visited, hit, env.width, env.height))
     if c.novelty_claim:  # at most K bonuses per episode; the goal pays those not yet earned
         left = jnp.maximum(c.novelty_claim - carry.visited.sum(axis=1), 0).astype(jnp.float32)

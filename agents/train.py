@@ -197,9 +197,7 @@ class Learner(struct.PyTreeNode):
         zeros = jnp.zeros((c.num_envs,), jnp.float32)
         carry = EnvCarry(
             state=states, obs=obs, sentence=sentence,
-            frames=frames, visited=rollout.visits(states, env.width, env.height,
-                                                  c.novelty_bonus != 0, c.novelty_changes,
-                                                  carrying=c.novelty_carrying),
+            frames=frames, visited=rollout.config_visits(states, env, c),
             ep_return=zeros, ep_length=zeros.astype(jnp.int32), alarmed=zeros > 0,
             memory=start_memory(self.network, c.num_envs),
         )  # fmt: skip
