@@ -10,6 +10,8 @@ behaviour agent, windows and a window checker:
   (the step out of each frame violates), with ``label="into"`` the step into each frame
   (:func:`checker.memory.relabel`);
 * **checker**: :func:`checker.memory.train_memory_checker`, saved in ``DIR/checker/``;
+* **the shield's own checker** (``ExperimentConfig.shield_guided``): the same, with another
+  share of oracle actions, in ``DIR/shield_checker/`` and ``DIR/shield_checker.json``;
 * **report**: on fresh streams of the same env (another key), the metrics of the window
   checker's report at the agents' ``checker_threshold``, and AUROC per constraint type, on
   late budget violations and on counting itself (``details.test``), in ``DIR/checker.json``.
@@ -20,6 +22,7 @@ parameters' checksum), and redone with a message when they are damaged.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -33,9 +36,16 @@ from experiments.phases import _rates, _redo
 from jaxgrid.io import read_json, write_json
 
 
-def train_memory_checker(cfg, out: Path):
-    """``(trained, report)``: the memory checker of ``cfg`` (trained, or loaded from ``out``)."""
-    ckpt, report_path = out / "checker", out / "checker.json"
+def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | None = None):
+    """``(trained, report)``: the memory checker of ``cfg`` (trained, or loaded from ``out``),
+    in ``out/<name>/`` with its report ``out/<name>.json``; ``guided`` replaces
+    ``cfg.memory_checker.guided`` (the shield's own checker, ``ExperimentConfig.shield_guided``).
+    """
+    ckpt, report_path = out / name, out / f"{name}.json"
+    phase = "c. memory checker" if name == "checker" else f"c'. {name.replace('_', ' ')}"
+    settings = cfg.memory_checker
+    if guided is not None:
+        settings = dataclasses.replace(settings, guided=guided)
     if ckpt.exists() or report_path.exists():
         try:
             trained, report = chk.load(ckpt), read_json(report_path)
@@ -43,17 +53,18 @@ def train_memory_checker(cfg, out: Path):
                 raise ValueError(f"{ckpt} holds a window checker, not a memory checker")
             if report.get("params_sha256") != params_sha256(ckpt):
                 raise ValueError(f"{report_path} describes other parameters than {ckpt}")
+            made = report.get("training", {}).get("guided")
+            if made != settings.guided:  # a resume with another --memory-guided
+                raise ValueError(f"{ckpt} was trained with guided {made}, not {settings.guided}")
             return trained, report
         except (ValueError, FileNotFoundError) as e:
-            _redo("c. memory checker", e)
-    settings = cfg.memory_checker
+            _redo(phase, e)
     env = cfg.ppo.make_env()
     key = jax.random.PRNGKey(cfg.seed)
     data = memory.collect_streams(env, key, settings.streams, settings.steps, settings.guided)
     data = memory.relabel(data, settings.label)
     config = memory.MemoryCheckerConfig(view_size=env.view_size)
-    params, losses = memory.fit(data, config, settings, "c. memory checker" if cfg.progress
-                                else None)  # fmt: skip
+    params, losses = memory.fit(data, config, settings, phase if cfg.progress else None)
     threshold = cfg.ppo.checker_threshold
     trained = memory.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
                                           threshold=threshold, label=settings.label)  # fmt: skip
@@ -81,6 +92,6 @@ def train_memory_checker(cfg, out: Path):
     write_json(report_path, report)  # last: its presence marks the phase as done
     types = ", ".join(f"{t} {v['auroc']:.3f}" for t, v in metrics["per_type"].items()
                       if v["auroc"] is not None)  # fmt: skip
-    print(f"c. memory checker: test AUROC {report['test']['auroc']:.3f} ({types}); counting "
+    print(f"{phase}: test AUROC {report['test']['auroc']:.3f} ({types}); counting "
           f"(costly budget) {metrics['costly_budget']['auroc']}")  # fmt: skip
     return trained, report

@@ -395,12 +395,13 @@ class Compiler:
         self.order: list[str] = []  # the modes in the order they were queued
         self.pool = ThreadPoolExecutor(1, thread_name_prefix="compile")
 
-    def submit(self, trained=None) -> None:
-        """Queue the modes that need no checker (``trained`` None) or those that need it,
-        the slowest to train first (:data:`TRAINING_COST`)."""
+    def submit(self, checkers: dict | None = None) -> None:
+        """Queue the modes that need no checker (``checkers`` None) or those that need one,
+        each with its checker in ``checkers`` ({mode: trained checker}), the slowest to
+        train first (:data:`TRAINING_COST`)."""
         for mode in sorted(self.cfg.modes, key=lambda m: -TRAINING_COST.get(m, 1.0)):
-            config, checker, common = _agents(self.cfg, mode, trained)
-            if mode not in self.jobs and config.uses_checker == (trained is not None):
+            config, checker, common = _agents(self.cfg, mode, (checkers or {}).get(mode))
+            if mode not in self.jobs and config.uses_checker == (checkers is not None):
                 out_dir = Path(self.cfg.out) / "modes" / mode  # finished: the final only
                 self.jobs[mode] = self.pool.submit(precompile, config, checker, **common,
                                                    out_dir=out_dir)  # fmt: skip
@@ -510,6 +511,15 @@ def _memory_extras(checker_report: dict) -> dict:
     return {"auroc_by": by}
 
 
+def _shield_checker(report: dict | None) -> dict:
+    """The shield's own checker (``ExperimentConfig.shield_guided``): its test metrics, the
+    share of oracle actions in its streams and its AUROC by type; nothing without one."""
+    if report is None:
+        return {}
+    return {"shield": {"test": report["test"], "guided": report["training"]["guided"],
+                       **_memory_extras(report)}}  # fmt: skip
+
+
 def assemble(cfg, out: Path, runs: dict, checker_report: dict, total_s: float) -> dict:
     """The ``results.json`` object (schema: :data:`experiments.report.RESULTS_SCHEMA`)."""
     methods = {mode: _method(r, cfg.final_episodes) for mode, r in runs.items()}
@@ -523,6 +533,7 @@ def assemble(cfg, out: Path, runs: dict, checker_report: dict, total_s: float) -
             "trained_on": cfg.checker_env_id,
             "kind": cfg.checker_kind,
             **_memory_extras(checker_report),
+            **_shield_checker(checker_report.get("shield")),
         },
         "methods": methods,
         "comparisons": _comparisons(methods),

@@ -56,6 +56,7 @@ from experiments import memory_phase, phases
 from jaxgrid import rundir
 
 CHECKER_KINDS = ("window", "memory")
+SHIELD_CHECKER = "shield_checker"  # the shield's own checker: DIR/shield_checker{/,.json}
 
 
 def _modes(args: list[str]) -> tuple[str, ...]:
@@ -127,6 +128,12 @@ class ExperimentConfig:
     checker_kind: str = "window"
     # The memory checker's data and training (--memory-*; checker_kind "memory" only)
     memory_checker: MemoryTrainConfig = MemoryTrainConfig(streams=512, updates=600)
+    # The shield's own memory checker: trained as --memory-* say, but with this share of
+    # oracle actions in its streams (--memory-guided); None: the shield uses the experiment's
+    # checker. A shield pays for each false alarm with success, so it wants streams that go
+    # where trained agents go; a penalty wants the late budget violations that the random
+    # streams hold more of (docs/decisions.md). --checker replaces the other checker only.
+    shield_guided: float | None = None
 
     def __post_init__(self):
         if self.checker_env_id is None:
@@ -152,6 +159,17 @@ class ExperimentConfig:
             value, low = getattr(self, name), int(name in positive)
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"{me}.{name} must be an integer >= {low}, got {value!r}")
+        guided = self.shield_guided
+        if guided is not None:
+            if isinstance(guided, bool) or not isinstance(guided, int | float) or not (
+                0 <= guided <= 1
+            ):
+                raise ValueError(f"{me}.shield_guided must be None or a share in [0, 1], got "
+                                 f"{guided!r}")  # fmt: skip
+            if self.checker_kind != "memory":
+                raise ValueError(f"{me}.shield_guided: the shield's own checker is a memory "
+                                 f"checker, and {self.experiment} trains a "
+                                 f"{self.checker_kind} checker")  # fmt: skip
         eps = self.collect_epsilon
         if isinstance(eps, bool) or not isinstance(eps, int | float) or not 0 <= eps <= 1:
             raise ValueError(f"{me}.collect_epsilon must be a number in [0, 1], got {eps!r}")
@@ -290,14 +308,22 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     try:
         compiler.submit()  # the modes without a checker, while the checker is made
         made = workers.submit(_make_checker, cfg, out, keep, workers.cancel)  # a-c
+        own = None  # c': the shield's own checker, beside c
+        if cfg.shield_guided is not None and "shield" in cfg.modes:
+            own = workers.submit(memory_phase.train_memory_checker, cfg, out,
+                                 name=SHIELD_CHECKER, guided=cfg.shield_guided)  # fmt: skip
         # d, e: the modes without a checker start beside a-c, the others once it is done
         train = lambda mode, trained: workers.submit(  # noqa: E731
             phases.train_agents, cfg, out, mode, trained, compiler, workers.cancel
         )
         jobs = {m: train(m, None) for m in compiler.order}
         trained, checker_report = made.result()
-        compiler.submit(trained)
-        jobs.update({m: train(m, trained) for m in compiler.order if m not in jobs})
+        checkers = {mode: trained for mode in cfg.modes}
+        if own is not None:
+            checkers["shield"], shield_report = own.result()
+            checker_report = dict(checker_report, shield=shield_report)
+        compiler.submit(checkers)
+        jobs.update({m: train(m, checkers[m]) for m in compiler.order if m not in jobs})
         runs = workers.results({m: jobs[m] for m in cfg.modes})
     finally:
         workers.close()
@@ -339,7 +365,8 @@ PHASES = {"window": "behaviour agent, checker data, checker",
           "memory": "random-policy streams, memory checker"}  # fmt: skip
 # Flags that mean nothing for one kind of checker, hidden from its experiments' command line.
 UNUSED_FLAGS: dict[str, cli.Names] = {
-    "window": {MemoryTrainConfig: {f.name: None for f in dataclasses.fields(MemoryTrainConfig)}},
+    "window": {MemoryTrainConfig: {f.name: None for f in dataclasses.fields(MemoryTrainConfig)},
+               ExperimentConfig: {"shield_guided": None}},
     "memory": {
         ExperimentConfig: {"behaviour_steps": None, "checker_samples": None,
                            "collect_max_steps": None, "collect_epsilon": None},

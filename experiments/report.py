@@ -111,6 +111,8 @@ RESULTS_SCHEMA: dict[str, Any] = {
         "test": {m: "rate" for m in CHECKER_METRICS},
         "heldout": "same as test | null (key required; null when not measured)",
         "transfer": "optional: same as test | null",
+        "shield": "optional: the shield's own checker: {test: same as test, guided: rate, "
+        "auroc_by}",
     },
     "methods": {
         "<mode in checker|shaped|none|lagrangian|shield|shield_monitor> (at least one)": {
@@ -211,6 +213,9 @@ def validate_results(results: dict) -> None:
         _check_metrics(chk["heldout"], "checker.heldout")
     if chk.get("transfer") is not None:
         _check_metrics(chk["transfer"], "checker.transfer")
+    if chk.get("shield") is not None:
+        shield = _require_mapping(chk["shield"], "checker.shield")
+        _check_metrics(_get(shield, "test", "checker.shield"), "checker.shield.test")
 
     methods = _require_mapping(_get(results, "methods", ""), "methods")
     if not methods:
@@ -554,12 +559,21 @@ def results_table(results: Mapping) -> str:
             lines.append(f"| {split} |" + " n/a |" * len(CHECKER_METRICS))
             continue
         lines.append(f"| {split} |" + "".join(f" {float(m[k]):.3f} |" for k in CHECKER_METRICS))
+    shield = chk.get("shield")
+    if shield:  # the shield's own checker, on its own streams' test split
+        m = shield["test"]
+        lines.append(f"| test, shield's checker (guided {float(shield['guided']):g}) |"
+                     + "".join(f" {float(m[k]):.3f} |" for k in CHECKER_METRICS))  # fmt: skip
     by = chk.get("auroc_by")
     if by:  # a memory checker: how well it ranks each constraint type, and counts
+        rows = [("memory checker", by)]
+        if shield and shield.get("auroc_by"):
+            rows.append(("shield's checker", shield["auroc_by"]))
         lines += ["", "| Checker AUROC on test | " + " | ".join(by) + " |",
-                  "|---|" + "---:|" * len(by),
-                  "| memory checker | " + " | ".join("n/a" if v is None else f"{v:.3f}"
-                                                   for v in by.values()) + " |"]  # fmt: skip
+                  "|---|" + "---:|" * len(by)]  # fmt: skip
+        lines += [f"| {name} | " + " | ".join("n/a" if row.get(k) is None else
+                                              f"{row[k]:.3f}" for k in by) + " |"
+                  for name, row in rows]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -650,6 +664,8 @@ def summarise(results: Mapping) -> str:
         for split in CHECKER_SPLITS
         if chk.get(split) is not None
     ]
+    if chk.get("shield") is not None:
+        parts.append(f"shield's checker {float(chk['shield']['test']['auroc']):.3f}")
     lines.append("  checker AUROC: " + (", ".join(parts) if parts else "n/a"))
     total = (results.get("timing") or {}).get("total_s")
     if total is not None:

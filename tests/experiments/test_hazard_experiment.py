@@ -34,6 +34,7 @@ def test_each_experiment_shows_the_flags_of_its_checker(capsys):
     hazard, window = _help(capsys, hazard_rooms.SCENARIO), _help(capsys, two_rooms.SCENARIO)
     assert MEMORY_FLAGS <= set(hazard) and not WINDOW_FLAGS & set(hazard)
     assert WINDOW_FLAGS <= set(window) and not MEMORY_FLAGS & set(window)
+    assert "(default: 0.5)" in hazard["--shield-guided"] and "--shield-guided" not in window
     assert "(default: 600)" in hazard["--memory-updates"]
 
 
@@ -55,6 +56,12 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
                                alarm_forward=True, novelty_carrying=True)  # fmt: skip
     assert same == base
     assert cfg.memory_checker.seed == cfg.ppo.seed
+    # the shield's own checker learns from streams half of whose actions are the oracle's
+    assert cfg.shield_guided == 0.5 and cfg.memory_checker.guided == 0.0
+    assert preset(two_rooms.SCENARIO).shield_guided is None
+    with pytest.raises(ValueError, match="shield_guided: the shield's own checker is a memory "
+                                         "checker, and two_rooms trains a window checker"):
+        dataclasses.replace(preset(two_rooms.SCENARIO), shield_guided=0.5)
     # its checker learns the step into each frame; the window checkers' just-before label
     assert cfg.memory_checker.label == "into"
     assert preset(two_rooms.SCENARIO).memory_checker.label == "next"
@@ -69,6 +76,8 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
         (["--memory-streams", "4"], "--memory-batch-streams (8) exceeds --memory-streams (4)"),
         (["--memory-lr", "0"], "--memory-lr must be > 0"),
         (["--memory-label", "before"], "--memory-label must be one of ('next', 'into')"),
+        (["--shield-guided", "1.5"], "--shield-guided must be None or a share in [0, 1], got "
+                                     "1.5"),
     ],
 )
 def test_bad_memory_flags_are_usage_errors_before_any_compile(
@@ -140,3 +149,62 @@ def test_the_memory_phase_is_skipped_when_done_and_redone_when_damaged(
     write_json(tmp_path / "checker.json", {**report, "params_sha256": "0" * 64})
     memory_phase.train_memory_checker(cfg, tmp_path)
     assert "c. memory checker: redoing this phase" in capsys.readouterr().err
+
+
+def test_the_shields_own_checker_is_a_phase_of_its_own(tmp_path, capsys, monkeypatch):
+    """``name`` and ``guided`` put a second checker beside the first, trained on other
+    streams; a resume with another share of oracle actions retrains it, with a message."""
+    shares = []
+    monkeypatch.setattr(MC, "collect_streams", lambda env, key, n, t, guided=0.0: (
+        shares.append(guided) or _fake_streams(env, key, n, t)))  # fmt: skip
+    cfg = dataclasses.replace(
+        preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
+        memory_checker=MC.MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
+    )  # fmt: skip
+    _, own = memory_phase.train_memory_checker(cfg, tmp_path, name="shield_checker", guided=0.5)
+    assert shares == [0.5, 0.5]  # its training and test streams
+    assert own["training"]["guided"] == 0.5 and (tmp_path / "shield_checker.json").exists()
+    assert not (tmp_path / "checker.json").exists()
+    assert "c'. shield checker: test AUROC" in capsys.readouterr().out
+    memory_phase.train_memory_checker(cfg, tmp_path, name="shield_checker", guided=0.25)
+    assert "c'. shield checker: redoing this phase" in capsys.readouterr().err
+    assert shares[2:] == [0.25, 0.25]
+
+
+def test_the_shield_trains_with_its_own_checker_and_the_others_with_the_experiments(
+    tmp_path, monkeypatch
+):
+    """The pipeline's routing, with every phase replaced by a stand-in that records what it
+    was given: no training, no compile."""
+    made, compiled = {}, {}
+
+    class Stop(Exception):
+        pass
+
+    monkeypatch.setattr(pipeline, "_make_checker", lambda cfg, out, keep, cancel: (
+        "experiment's", {"test": {}}))  # fmt: skip
+    monkeypatch.setattr(memory_phase, "train_memory_checker", lambda cfg, out, name, guided: (
+        made.update(name=name, guided=guided) or "shield's", {"test": {}, "guided": guided}))
+    monkeypatch.setattr(phases, "precompile", lambda config, checker, **kw: compiled.update(
+        {config.reward_mode: checker}))  # fmt: skip
+    monkeypatch.setattr(phases, "train_agents", lambda cfg, out, mode, trained, compiler,
+                        cancel: compiler.wait(mode) or {"checker": trained})  # fmt: skip
+    monkeypatch.setattr(phases, "write_gif", lambda *a: (_ for _ in ()).throw(Stop()))
+    cfg = dataclasses.replace(preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path / "o"))
+    keep = {}
+    with pytest.raises(Stop):
+        pipeline.run_experiment(cfg, keep)
+    assert made == {"name": pipeline.SHIELD_CHECKER, "guided": 0.5}
+    given = {mode: r["checker"] for mode, r in keep["runs"].items()}
+    assert given["shield"] == "shield's" and given["checker"] == given["lagrangian"] == \
+        "experiment's"  # fmt: skip
+    assert given["none"] is None and given["shaped"] is None  # no checker at all
+    assert keep["report"]["shield"] == {"test": {}, "guided": 0.5}
+    for mode in ("shield", "checker"):  # compiled with the checker it trains with
+        assert compiled.get(mode, given[mode]) == given[mode]
+    # without the shield among the modes, its checker is not trained
+    made.clear()
+    with pytest.raises(Stop):
+        pipeline.run_experiment(dataclasses.replace(cfg, modes=("checker",),
+                                                    out=str(tmp_path / "p")), {})  # fmt: skip
+    assert made == {}

@@ -437,3 +437,19 @@ def test_assembled_results_hold_shields_early_violations_and_comparisons(tmp_pat
                                 for k in ("training_violations",
                                           "training_violations_first20")}  # fmt: skip
     assert "shield off" in results_table(results)
+
+
+def test_the_shields_own_checker_is_validated_tabled_and_summarised(good):
+    by = {"avoid": 0.999, "budget": 0.99, "sequential": None, "late_budget": 0.98}
+    good["checker"]["auroc_by"] = by
+    good["checker"]["shield"] = {"test": {**METRICS, "auroc": 0.987}, "guided": 0.5,
+                                 "auroc_by": {**by, "budget": 0.95}}  # fmt: skip
+    validate_results(good)
+    md = results_table(good)
+    assert "| test, shield's checker (guided 0.5) |" in md and " 0.987 |" in md
+    assert "| memory checker | 0.999 | 0.990 | n/a | 0.980 |" in md
+    assert "| shield's checker | 0.999 | 0.950 | n/a | 0.980 |" in md
+    assert "shield's checker 0.987" in summarise(good)
+    good["checker"]["shield"]["test"]["auroc"] = 1.5
+    with pytest.raises(ValueError, match=r"^checker\.shield\.test\.auroc: expected a float"):
+        validate_results(good)
