@@ -8,7 +8,8 @@ and those that reach the goal are counted per sentence template and per colour t
 names. An agent that has learned the constraint for some colours and not yet for others
 shows it here, where the run's single violation rate cannot. The checker modes need the
 checker the run was trained with (``--checker``; by default the experiment's
-``DIR/checker``). In the shield modes the shield is on unless ``--policy-alone``.
+``DIR/checker``, or the shield's own ``DIR/shield_checker`` for the run it trained). In the
+shield modes the shield is on unless ``--policy-alone``.
 
 Each agent's ``stages`` say how far its episodes get: the fraction that carried an object
 and that entered each room beyond the first (rooms are split by the walls that run across
@@ -27,6 +28,7 @@ import numpy as np
 import checker as chk
 from agents.runner import load_agents
 from checker import cli
+from checker.trained import params_sha256
 from jaxgrid import hazard_language, language
 from jaxgrid.constants import DOOR, EMPTY, WALL
 from jaxgrid.io import read_json, write_json
@@ -55,10 +57,16 @@ class BreakdownConfig:
 
 
 def _checker_of(cfg: BreakdownConfig):
-    """The run's checker: ``--checker``, else the experiment's; None if the run had none."""
-    if not read_json(Path(cfg.run) / "run.json").get("checker_sha256"):
+    """The run's checker: ``--checker``, else the experiment's (``checker/``, or the shield's
+    own ``shield_checker/`` when that one's parameters are the run's); None if it had none."""
+    digest = read_json(Path(cfg.run) / "run.json").get("checker_sha256")
+    if not digest:
         return None
-    path = Path(cfg.checker or Path(cfg.run).parent.parent / "checker")
+    experiment = Path(cfg.run).parent.parent
+    path = Path(cfg.checker or experiment / "checker")
+    own = experiment / "shield_checker"
+    if cfg.checker is None and (own / "config.json").exists() and params_sha256(own) == digest:
+        path = own
     if not (path / "config.json").exists():
         raise ValueError(f"{cfg.run} was trained with a checker: pass it with --checker")
     return chk.load(path)

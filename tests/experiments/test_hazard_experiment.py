@@ -208,3 +208,26 @@ def test_the_shield_trains_with_its_own_checker_and_the_others_with_the_experime
         pipeline.run_experiment(dataclasses.replace(cfg, modes=("checker",),
                                                     out=str(tmp_path / "p")), {})  # fmt: skip
     assert made == {}
+
+
+def test_the_breakdown_finds_the_checker_each_mode_trained_with(tmp_path):
+    """``experiments.breakdown`` without ``--checker``: the shield's run names the parameters
+    of ``shield_checker/``, the other modes' those of ``checker/``."""
+    from jax.flatten_util import ravel_pytree
+
+    from checker.trained import params_sha256
+    from experiments import breakdown
+
+    first = _saved_memory_checker(tmp_path / "checker", label="into")
+    own = MC.new_memory_checker(first.config, jax.random.PRNGKey(1), env_id="HazardRooms-v0",
+                                label="into")  # fmt: skip
+    MC.save(own, tmp_path / "shield_checker")
+    for mode, name in (("shield", "shield_checker"), ("checker", "checker")):
+        (tmp_path / "modes" / mode).mkdir(parents=True)
+        write_json(tmp_path / "modes" / mode / "run.json",
+                   {"checker_sha256": params_sha256(tmp_path / name)})  # fmt: skip
+        cfg = breakdown.BreakdownConfig(run=str(tmp_path / "modes" / mode))
+        found = breakdown._checker_of(cfg)
+        expected = own if name == "shield_checker" else first
+        np.testing.assert_array_equal(*(ravel_pytree(c.params)[0]
+                                        for c in (found, expected)))  # fmt: skip
