@@ -29,6 +29,7 @@ import checker as chk
 from agents.runner import load_agents
 from checker import cli
 from checker.trained import params_sha256
+from experiments.memory_phase import SHIELD_CHECKER
 from jaxgrid import hazard_language, language
 from jaxgrid.constants import DOOR, EMPTY, WALL
 from jaxgrid.io import read_json, write_json
@@ -64,7 +65,7 @@ def _checker_of(cfg: BreakdownConfig):
         return None
     experiment = Path(cfg.run).parent.parent
     path = Path(cfg.checker or experiment / "checker")
-    own = experiment / "shield_checker"
+    own = experiment / SHIELD_CHECKER
     if cfg.checker is None and (own / "config.json").exists() and params_sha256(own) == digest:
         path = own
     if not (path / "config.json").exists():

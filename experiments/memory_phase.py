@@ -35,6 +35,8 @@ from checker.trained import params_sha256
 from experiments.phases import _rates, _redo
 from jaxgrid.io import read_json, write_json
 
+SHIELD_CHECKER = "shield_checker"  # the shield's own checker: DIR/shield_checker{/,.json}
+
 
 def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | None = None):
     """``(trained, report)``: the memory checker of ``cfg`` (trained, or loaded from ``out``),

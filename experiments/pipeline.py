@@ -56,7 +56,6 @@ from experiments import memory_phase, phases
 from jaxgrid import rundir
 
 CHECKER_KINDS = ("window", "memory")
-SHIELD_CHECKER = "shield_checker"  # the shield's own checker: DIR/shield_checker{/,.json}
 
 
 def _modes(args: list[str]) -> tuple[str, ...]:
@@ -310,8 +309,8 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
         made = workers.submit(_make_checker, cfg, out, keep, workers.cancel)  # a-c
         own = None  # c': the shield's own checker, beside c
         if cfg.shield_guided is not None and "shield" in cfg.modes:
-            own = workers.submit(memory_phase.train_memory_checker, cfg, out,
-                                 name=SHIELD_CHECKER, guided=cfg.shield_guided)  # fmt: skip
+            own = workers.submit(memory_phase.train_memory_checker, cfg, out, guided=
+                                 cfg.shield_guided, name=memory_phase.SHIELD_CHECKER)  # fmt: skip
         # d, e: the modes without a checker start beside a-c, the others once it is done
         train = lambda mode, trained: workers.submit(  # noqa: E731
             phases.train_agents, cfg, out, mode, trained, compiler, workers.cancel

@@ -194,7 +194,7 @@ def test_the_shield_trains_with_its_own_checker_and_the_others_with_the_experime
     keep = {}
     with pytest.raises(Stop):
         pipeline.run_experiment(cfg, keep)
-    assert made == {"name": pipeline.SHIELD_CHECKER, "guided": 0.5}
+    assert made == {"name": memory_phase.SHIELD_CHECKER, "guided": 0.5}
     given = {mode: r["checker"] for mode, r in keep["runs"].items()}
     assert given["shield"] == "shield's" and given["checker"] == given["lagrangian"] == \
         "experiment's"  # fmt: skip
