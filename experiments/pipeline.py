@@ -58,6 +58,11 @@ from jaxgrid import rundir
 CHECKER_KINDS = ("window", "memory")
 
 
+def _is_share(x) -> bool:
+    """``x`` is a number (not a bool) in [0, 1]."""
+    return not isinstance(x, bool) and isinstance(x, int | float) and 0 <= x <= 1
+
+
 def _modes(args: list[str]) -> tuple[str, ...]:
     return tuple(m.strip() for m in args[0].split(",") if m.strip())
 
@@ -160,9 +165,7 @@ class ExperimentConfig:
                 raise ValueError(f"{me}.{name} must be an integer >= {low}, got {value!r}")
         guided = self.shield_guided
         if guided is not None:
-            if isinstance(guided, bool) or not isinstance(guided, int | float) or not (
-                0 <= guided <= 1
-            ):
+            if not _is_share(guided):
                 raise ValueError(f"{me}.shield_guided must be None or a share in [0, 1], got "
                                  f"{guided!r}")  # fmt: skip
             if self.checker_kind != "memory":
@@ -170,7 +173,7 @@ class ExperimentConfig:
                                  f"checker, and {self.experiment} trains a "
                                  f"{self.checker_kind} checker")  # fmt: skip
         eps = self.collect_epsilon
-        if isinstance(eps, bool) or not isinstance(eps, int | float) or not 0 <= eps <= 1:
+        if not _is_share(eps):
             raise ValueError(f"{me}.collect_epsilon must be a number in [0, 1], got {eps!r}")
         if self.sweep is not None:
             self.sweep_values  # noqa: B018 (validates)
