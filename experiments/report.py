@@ -551,6 +551,9 @@ def results_table(results: Mapping) -> str:
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
     chk = results.get("checker") or {}
+    row = lambda name, m: f"| {name} |" + "".join(  # noqa: E731
+        f" {float(m[k]):.3f} |" for k in CHECKER_METRICS
+    )
     for split in CHECKER_SPLITS:
         m = chk.get(split)
         if m is None:
@@ -558,12 +561,11 @@ def results_table(results: Mapping) -> str:
                 continue  # only shown by experiments that measure transfer
             lines.append(f"| {split} |" + " n/a |" * len(CHECKER_METRICS))
             continue
-        lines.append(f"| {split} |" + "".join(f" {float(m[k]):.3f} |" for k in CHECKER_METRICS))
+        lines.append(row(split, m))
     shield = chk.get("shield")
     if shield:  # the shield's own checker, on its own streams' test split
-        m = shield["test"]
-        lines.append(f"| test, shield's checker (guided {float(shield['guided']):g}) |"
-                     + "".join(f" {float(m[k]):.3f} |" for k in CHECKER_METRICS))  # fmt: skip
+        lines.append(row(f"test, shield's checker (guided {float(shield['guided']):g})",
+                         shield["test"]))  # fmt: skip
     by = chk.get("auroc_by")
     if by:  # a memory checker: how well it ranks each constraint type, and counts
         rows = [("memory checker", by)]
