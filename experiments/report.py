@@ -573,9 +573,9 @@ def results_table(results: Mapping) -> str:
             rows.append(("shield's checker", shield["auroc_by"]))
         lines += ["", "| Checker AUROC on test | " + " | ".join(by) + " |",
                   "|---|" + "---:|" * len(by)]  # fmt: skip
-        lines += [f"| {name} | " + " | ".join("n/a" if row.get(k) is None else
-                                              f"{row[k]:.3f}" for k in by) + " |"
-                  for name, row in rows]  # fmt: skip
+        lines += [f"| {name} | " + " | ".join("n/a" if aurocs.get(k) is None else
+                                              f"{aurocs[k]:.3f}" for k in by) + " |"
+                  for name, aurocs in rows]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
