@@ -15,6 +15,12 @@ candidate:
 * ``monitor``: the ground-truth monitor's violation flag of the candidate step (a perfect
   one-step judge, the reference the learned checker is measured against).
 
+Every constraint event is the agent entering a cell, and only ``forward`` moves the agent, so
+a judge of the step itself (the monitor, a memory checker of ``label="into"``) is asked about
+``forward`` alone (:data:`MOVES`; the other actions' risk is 0): seven times fewer candidates,
+and no false alarm can block a turn. A just-before checker is asked about every action,
+since turning can lead to a state from which a violation is expected next.
+
 The policy samples from its distribution restricted to the allowed actions (renormalised);
 where every action is blocked, the least risky one stays allowed. PPO learns from that masked
 distribution: the mask is stored with each transition and applied again in the loss
@@ -30,11 +36,14 @@ import jax
 import jax.numpy as jnp
 
 from agents.evaluation import violation_of
+from jaxgrid.constants import FORWARD
 
 JUDGES = ("checker", "monitor")
 # A blocked action's logit: its probability underflows to 0 and its log-probability stays
 # finite, so entropies and log-ratios never see inf - inf.
 BLOCKED_LOGIT = -1e9
+#: The actions that can move the agent into another cell, the only ones that can violate.
+MOVES = (FORWARD,)
 
 
 def mask_logits(logits: jax.Array, allowed: jax.Array) -> jax.Array:
@@ -60,7 +69,8 @@ class Shield(struct.PyTreeNode):
     ``allowed(states, frames, lang) -> (allowed bool (E, A), risk float32 (E, A))`` where
     ``states`` are the envs' (raw, batched) states, ``frames`` the checker's memory of each
     env's episode (:attr:`agents.rollout.EnvCarry.frames`) and ``lang`` the checker's
-    sentence codes (E, G); the ``monitor`` judge reads neither.
+    sentence codes (E, G); the ``monitor`` judge reads neither. ``judged`` names the actions
+    whose candidates are scored (None: all); the others are never blocked.
     """
 
     env: Any = struct.field(pytree_node=False)
@@ -68,20 +78,33 @@ class Shield(struct.PyTreeNode):
     # A leaf, so that agents swept over it in one program can each have their own.
     threshold: float | jax.Array = 0.5
     checker: Any = None
+    judged: tuple[int, ...] | None = struct.field(pytree_node=False, default=None)
+
+    @property
+    def actions(self) -> tuple[int, ...]:
+        """The actions whose candidates are scored."""
+        return tuple(range(self.env.num_actions)) if self.judged is None else self.judged
 
     def candidates(self, states):
-        """Step every action from every state: ``(states, timesteps)`` with axes (E, A)."""
-        actions = jnp.arange(self.env.num_actions)
+        """Step every judged action from every state: ``(states, timesteps)`` with axes (E, J)
+        (J = ``len(self.actions)``)."""
+        actions = jnp.asarray(self.actions, jnp.int32)
         step_all = jax.vmap(self.env.step, in_axes=(None, 0))
         return jax.vmap(step_all, in_axes=(0, None))(states, actions)
 
     def risk(self, states, frames: jax.Array, lang: jax.Array) -> jax.Array:
-        """float32 (E, A): each action's violation probability (checker) or flag (monitor)."""
+        """float32 (E, A): each action's violation probability (checker) or flag (monitor);
+        0 for an action not judged."""
         _, ts = self.candidates(states)
         if self.judge == "monitor":
-            return violation_of(ts).astype(jnp.float32)
-        emb = self.checker.embed_states(ts.observation["image"])  # (E, A, D)
-        return jax.nn.sigmoid(self.checker.candidate_logits(frames, emb, lang))
+            risk = violation_of(ts).astype(jnp.float32)
+        else:
+            emb = self.checker.embed_states(ts.observation["image"])  # (E, J, D)
+            risk = jax.nn.sigmoid(self.checker.candidate_logits(frames, emb, lang))
+        if self.judged is None:
+            return risk
+        everyone = jnp.zeros(risk.shape[:-1] + (self.env.num_actions,), risk.dtype)
+        return everyone.at[..., jnp.asarray(self.judged)].set(risk)
 
     def allowed(self, states, frames: jax.Array, lang: jax.Array):
         """``(allowed bool (E, A), risk (E, A))``: :func:`allow_least_risky` of :meth:`risk`."""
@@ -114,12 +137,18 @@ class Shield(struct.PyTreeNode):
 
 
 def make_shield(env, judge: str, checker=None, threshold: float = 0.5) -> Shield:
-    """A :class:`Shield` for ``env``; the ``checker`` judge needs a trained ``checker``."""
+    """A :class:`Shield` for ``env``; the ``checker`` judge needs a trained ``checker``.
+
+    The monitor and a checker of the step into each frame (``label == "into"``) judge
+    :data:`MOVES` only; a just-before checker judges every action.
+    """
     if judge not in JUDGES:
         raise ValueError(f"shield judge must be one of {JUDGES}, got {judge!r}")
     if judge == "checker" and checker is None:
         raise ValueError("a checker shield needs a trained checker")
     if not 0 < threshold < 1:
         raise ValueError(f"shield threshold must be in (0, 1), got {threshold!r}")
+    steps_only = judge == "monitor" or getattr(checker, "label", "next") == "into"
     return Shield(env=env, judge=judge, threshold=float(threshold),
-                  checker=checker if judge == "checker" else None)  # fmt: skip
+                  checker=checker if judge == "checker" else None,
+                  judged=MOVES if steps_only else None)  # fmt: skip

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 from helpers.agents_cases import CHECKER_CONFIG, TINY, fast_jit
 
+import jaxgrid
+from agents.shield import MOVES, make_shield
 from agents.train import make_learner
 from checker import memory as M
 from checker.trained import new_checker
@@ -109,6 +111,25 @@ def test_the_shield_trains_and_evaluates_with_the_memory_checker(memory_checker)
     evaluate = fast_jit(learner.evaluate, static_argnums=2)
     episodes = evaluate(runner.params, jax.random.PRNGKey(1), 4)
     assert (np.asarray(episodes["length"]) > 0).all()
+
+
+def test_a_checker_of_the_step_into_each_frame_judges_moves_only(memory_checker):
+    """A memory checker of ``label="into"`` judges the step itself, which only a move can
+    make a violation: its shield scores forward as the all-action shield does and never blocks
+    another action; one of just-before labels (turning may face a hazard) judges them all."""
+    env = jaxgrid.make("HazardRooms-v0", sentences=SENTENCES)
+    into = memory_checker.replace(label="into")
+    assert make_shield(env, "checker", memory_checker).judged is None
+    shield = make_shield(env, "checker", into)
+    assert shield.judged == MOVES
+    states, ts = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(2), 16))
+    lang = into.encode_language(ts.observation["constraint"])
+    memory = into.stream_start(into.embed_states(ts.observation["image"]), lang)
+    moves = np.asarray(fast_jit(shield.risk)(states, memory, lang))
+    every = np.asarray(fast_jit(shield.replace(judged=None).risk)(states, memory, lang))
+    others = [a for a in range(env.num_actions) if a not in MOVES]
+    np.testing.assert_allclose(moves[:, MOVES], every[:, MOVES], atol=1e-6)
+    assert (moves[:, others] == 0).all() and (every[:, others] > 0).all()
 
 
 def test_a_window_checker_of_the_paper_language_is_refused_on_hazard_rooms():

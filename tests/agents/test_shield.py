@@ -16,7 +16,7 @@ import checker.reward as creward
 import jaxgrid
 from agents.evaluation import play_episodes
 from agents.losses import ppo_loss
-from agents.shield import allow_least_risky, blocked_mass, make_shield, mask_logits
+from agents.shield import MOVES, allow_least_risky, blocked_mass, make_shield, mask_logits
 from agents.train import make_learner
 
 
@@ -73,15 +73,40 @@ def lava_states():
     return env, states(jax.random.PRNGKey(3))
 
 
-def test_candidates_are_the_envs_own_steps(lava_states):
+@pytest.mark.parametrize("judged", [None, MOVES])
+def test_candidates_are_the_envs_own_steps(lava_states, judged):
     env, states = lava_states
-    shield = make_shield(env, "monitor")
+    shield = make_shield(env, "monitor").replace(judged=judged)
     cand_states, cand_ts = fast_jit(shield.candidates)(states)
-    for a in range(env.num_actions):
+    assert len(shield.actions) == (env.num_actions if judged is None else len(MOVES))
+    for i, a in enumerate(shield.actions):
         want_states, want_ts = fast_jit(jax.vmap(env.step))(states, jnp.full((64,), a))
-        got = jax.tree.map(lambda x, a=a: x[:, a], (cand_states, cand_ts))
+        got = jax.tree.map(lambda x, i=i: x[:, i], (cand_states, cand_ts))
         for x, y in zip(jax.tree.leaves(got), jax.tree.leaves((want_states, want_ts)), strict=True):
             np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("env_id", ["TwoRoomsLava-v0", "HazardRooms-v0"])
+def test_only_a_move_can_violate_so_the_monitor_judges_moves_alone(env_id):
+    """From states next to hazards, the monitor judging every action flags a move and never
+    anything else, so judging only the moves (the default) gives the same risks."""
+    env = jaxgrid.make(env_id)
+
+    @fast_jit
+    def risks(key):
+        state, _ = jax.vmap(env.reset)(jax.random.split(key, 128))
+
+        def step(s, k):
+            s, _ = jax.vmap(env.step)(s, jax.random.randint(k, (128,), 0, env.num_actions))
+            every = make_shield(env, "monitor").replace(judged=None).risk(s, None, None)
+            return s, (every, make_shield(env, "monitor").risk(s, None, None))
+
+        return jax.lax.scan(step, state, jax.random.split(key, 24))[1]
+
+    every, moves = risks(jax.random.PRNGKey(4))
+    assert make_shield(env, "monitor").judged == MOVES
+    assert float(every[..., MOVES].sum()) >= 20  # the states do lead into hazards
+    np.testing.assert_array_equal(np.asarray(every), np.asarray(moves))
 
 
 def test_checker_judge_scores_the_raw_window_ending_at_each_candidate(lava_states, tiny_checker):
