@@ -7,7 +7,8 @@ as floor both times:
 * **obeying** the constraint (never entering any clause's forbidden zone): success % and the
   share of episodes with at least one violation, which should be 100 and 0;
 * **ignoring** it (the shortest route): the share of episodes it violates, i.e. how often the
-  constraint changes what an agent must do.
+  constraint changes what an agent must do; sequential episodes also by their first clause's
+  order ("after" or "before" its trigger) and trigger (picking up, a door, a ground cell).
 
 The environment draws types uniformly, so ``5 * episodes`` episodes are played in batches until
 every type has at least ``episodes``. Also reported: reset and step throughput of the scenario
@@ -31,6 +32,8 @@ import numpy as np
 from benchmarks.timing import measure
 from jaxgrid import hazard_language as HL
 from jaxgrid import make
+from jaxgrid import monitor as M
+from jaxgrid.constants import DOOR
 from jaxgrid.io import write_json
 from jaxgrid.oracle import rollout_oracle
 from jaxgrid.wrappers import BatchedAutoReset
@@ -41,13 +44,14 @@ TYPES = HL.CONSTRAINT_TYPES
 def oracle_figures(env, episodes: int, batch: int = 2_000, seed: int = 0) -> dict:
     """Per-type oracle figures (see the module docstring) over at least ``episodes`` each."""
     seen = np.zeros(len(TYPES), int)
-    acc = {k: [] for k in ("type", "success", "violated", "violated_unconstrained")}
+    acc = {k: [] for k in ("type", "success", "violated", "violated_unconstrained", "kind")}
     i = 0
     while seen.min() < episodes:
         key = jax.random.fold_in(jax.random.key(seed), i)
         obey = jax.tree.map(np.asarray, rollout_oracle(env, key, batch, avoid_lava=False))
         free = rollout_oracle(env, key, batch, obey_constraint=False, avoid_lava=False)
         free = jax.tree.map(np.asarray, free)
+        acc["kind"].append(_sequence_kinds(env, key, batch))
         acc["type"].append(obey["constraint_type"])
         acc["success"].append(obey["success"])
         acc["violated"].append(obey["violations"] > 0)
@@ -65,7 +69,28 @@ def oracle_figures(env, episodes: int, batch: int = 2_000, seed: int = 0) -> dic
             "violated_pct": 100 * float(cat["violated"][m].mean()),
             "unconstrained_violated_pct": 100 * float(cat["violated_unconstrained"][m].mean()),
         }
+    seq = cat["type"] == TYPES.index("sequential")
+    out["sequential"]["by_kind"] = {
+        kind: {"episodes": int(m.sum()),
+               "unconstrained_violated_pct": 100 * float(cat["violated_unconstrained"][m].mean())}
+        for kind in _KINDS
+        if (m := seq & (cat["kind"] == kind)).any()
+    }  # fmt: skip
     return out
+
+
+_KINDS = tuple(f"{o} {t}" for o in ("after", "before") for t in ("pickup", "door", "ground"))
+
+
+def _sequence_kinds(env, key, batch: int) -> np.ndarray:
+    """Each episode's first clause as "<order> <trigger>" (e.g. "after ground"; "" when it has
+    no trigger), from the layouts :func:`rollout_oracle` plays (the same reset keys)."""
+    states, _ = jax.jit(jax.vmap(env.reset))(jax.random.split(key, batch))
+    spec = jax.tree.map(lambda a: np.asarray(a)[:, 0], states.extras.monitor.spec)
+    order = np.select([spec.gate == M.AFTER, spec.gate == M.BEFORE], ["after ", "before "], "")
+    trigger = np.where(spec.trigger_pickup, "pickup",
+                       np.where(spec.trigger_kind == DOOR, "door", "ground"))  # fmt: skip
+    return np.where(order == "", "", np.char.add(order, trigger))
 
 
 def throughput(env_id: str, num_envs: int = 256, steps: int = 64, resets: int = 16) -> dict:
@@ -114,6 +139,9 @@ def main(argv=None) -> dict:
             f"{name:<12} {f['episodes']:>8,} {f['success_pct']:>9.2f} {f['violated_pct']:>10.2f}"
             f" {f['unconstrained_violated_pct']:>10.1f}"
         )
+    for kind, f in figures["oracle"]["sequential"]["by_kind"].items():
+        print(f"  sequential, {kind:<14} {f['episodes']:>6,} episodes, ignoring "
+              f"{f['unconstrained_violated_pct']:.1f}%")  # fmt: skip
     for env_id, f in figures["throughput"].items():
         print(f"{env_id}: {f['steps_per_s']:,.0f} steps/s (compile {f['compile_s']:.1f} s), "
               f"{f['reset_us']:,.0f} us per reset")  # fmt: skip
