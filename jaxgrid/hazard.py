@@ -19,7 +19,9 @@ violation) and every trigger cell the constraint names exists; after
 stay uniform; within a type, sentences that few layouts satisfy become rarer), and after
 :data:`MAX_TRIES` the last layout is kept. The agent never starts inside a zone. So that
 budgets and sequences bind, most strips (:data:`NAMED_SHARE`) are of the ground hazard a
-budget or sequential clause names first. The monitor (:mod:`jaxgrid.monitor`) lives in the
+budget or sequential clause names first, and the trigger of an "after" clause, when it is to
+enter lava or a floor, lies on both doorsteps out of the agent's room: a route that skirts its
+trigger never arms the clause. The monitor (:mod:`jaxgrid.monitor`) lives in the
 state; ``info`` reports ``violation``, ``cost``, ``constraint_type`` (index into
 :data:`jaxgrid.hazard_language.CONSTRAINT_TYPES`) and ``template_id`` (the first clause's).
 
@@ -75,6 +77,8 @@ STRIPS = (
     (FLOOR, BLUE), (FLOOR, GREEN), (FLOOR, GREEN), (FLOOR, YELLOW), (FLOOR, YELLOW),
 )  # fmt: skip
 _STRIP_LEN = 3
+# The two rooms each door joins: doors 0 and 1 in the vertical wall, 2 and 3 in the horizontal.
+_DOOR_ROOMS = ((0, 1), (2, 3), (0, 2), (1, 3))
 _COLOUR_NAMES = ("red", "green", "blue", "purple", "yellow", "grey")
 
 
@@ -247,11 +251,14 @@ class HazardRooms(Environment):
         return _default_table(self.split, tuple(self.budgets), tuple(self.distances))
 
     # --- layout ---------------------------------------------------------------------------
-    def layout(self, u: jax.Array, named: jax.Array | None = None):
+    def layout(self, u: jax.Array, named: jax.Array | None = None,
+               doorstep: jax.Array | None = None):  # fmt: skip
         """``(grid, agent, direction, goal)`` of one draw from uniforms ``u``.
 
         ``named``: int32 ``(2,)`` (kind, colour) of the ground hazard the constraint names
         first, or kind -1; each strip is of that hazard with probability :data:`NAMED_SHARE`.
+        ``doorstep``: int32 ``(2,)`` (kind, colour) of a ground cell laid in front of both
+        doors out of the agent's room, on every route, or kind -1 (none).
         """
         w, h = self.width, self.height
         mx, my = w // 2, h // 2  # the cross of walls
@@ -318,6 +325,16 @@ class HazardRooms(Environment):
         kinds, colours = (jnp.asarray(c, jnp.int32) for c in zip(*STRIPS, strict=True))
         strips = (kinds, colours, u[13 : 13 + 4 * n].reshape(n, 4), u[15 + 4 * n : 15 + 5 * n])
         grid, _ = jax.lax.scan(paint, grid, strips)
+        if doorstep is not None:
+            # The cell inside room r in front of each door (door i joins rooms _DOOR_ROOMS[i]).
+            steps = jnp.zeros((w, h), bool)
+            for i, ((dx, dy), rooms_i) in enumerate(zip(doors, _DOOR_ROOMS, strict=True)):
+                for r in rooms_i:
+                    step = (dx + (r % 2) * 2 - 1, dy) if i < 2 else (dx, dy + (r // 2) * 2 - 1)
+                    steps = steps | (G.at((w, h), step) & (agent_room == r))
+            kind, colour = doorstep[0], doorstep[1]
+            cell = jnp.where(kind == LAVA, jnp.asarray(LAVA_CELL), G.cell(FLOOR, colour, 0))
+            grid = jnp.where((steps & (kind >= 0))[..., None], cell, grid)
         direction = G.randint(u[14 + 4 * n], 0, 4)
         return grid, agent, direction, goal
 
@@ -373,8 +390,16 @@ class HazardRooms(Environment):
             # satisfy with more of their hazard.
             boost = ground & ((first.budget > 0) | (first.gate != M.ALWAYS))
             named = jnp.stack([jnp.where(boost, first.target_kind, -1), first.target_colour])
+            # An "after" clause binds only when the route meets its trigger first: a ground
+            # trigger lies on the doorsteps out of the agent's room, so every route meets it.
+            on_route = (first.gate == M.AFTER) & ~first.trigger_pickup & (
+                (first.trigger_kind == LAVA) | (first.trigger_kind == FLOOR)
+            )
+            doorstep = jnp.stack(
+                [jnp.where(on_route, first.trigger_kind, -1), first.trigger_colour]
+            )
             u = jax.random.uniform(jax.random.fold_in(key_l, i), (self.NUM_UNIFORMS,))
-            grid, agent, direction, goal = self.layout(u, named)
+            grid, agent, direction, goal = self.layout(u, named, doorstep)
             monitor = M.start(spec, grid)
             ok = solvable(grid, agent, jnp.any(monitor.zone, 0))
             # A trigger to enter must exist ("after you pass the purple door" with no purple

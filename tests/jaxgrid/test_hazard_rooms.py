@@ -31,6 +31,11 @@ def _room(pos):
 
 def test_layouts_follow_the_contract(resets):
     states, _ = resets
+    spec = states.extras.monitor.spec
+    # An "after" clause's ground trigger lies on the doorsteps out of the agent's room.
+    doorstep = (spec.gate[:, 0] == M.AFTER) & ~spec.trigger_pickup[:, 0]
+    doorstep &= (spec.trigger_kind[:, 0] == LAVA) | (spec.trigger_kind[:, 0] == FLOOR)
+    assert doorstep.sum() >= 20
     for e in range(len(states.grid)):
         g = states.grid[e]
         kind = g[..., 0]
@@ -41,14 +46,24 @@ def test_layouts_follow_the_contract(resets):
         assert len(set(colours)) == 4 and set(colours) <= set(DOOR_COLOURS.tolist())
         assert (g[doors[:, 0], doors[:, 1], 2] == CLOSED).all()
         assert ((kind == WALL) | (kind == DOOR))[6, :].all()
-        for x, y in doors:  # nothing but floor-free empty cells beside a door
+        agent_room = _room(states.agent_pos[e])
+        trigger = (spec.trigger_kind[e, 0], spec.trigger_colour[e, 0])
+        steps = 0
+        for x, y in doors:  # beside a door: empty, or the trigger on the agent's doorsteps
             for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-                if kind[x + dx, y + dy] != WALL:
-                    assert kind[x + dx, y + dy] == 1
+                cell = (x + dx, y + dy)
+                if kind[cell] == WALL:
+                    continue
+                if doorstep[e] and _room(cell) == agent_room:
+                    assert kind[cell] == trigger[0]
+                    assert trigger[0] == LAVA or g[cell][1] == trigger[1]
+                    steps += 1
+                else:
+                    assert kind[cell] == 1
+        assert steps == (2 if doorstep[e] else 0)
         goal = np.argwhere(kind == GOAL)
         key = np.argwhere(kind == KEY)
         assert len(goal) == 1 and len(key) == 1
-        agent_room = _room(states.agent_pos[e])
         assert _room(goal[0]) == 3 - agent_room and _room(key[0]) == agent_room
         floors = set(g[kind == FLOOR][:, 1].tolist())
         assert floors <= set(FLOOR_COLOURS)
@@ -56,7 +71,6 @@ def test_layouts_follow_the_contract(resets):
         ax, ay = states.agent_pos[e]
         assert not zone[ax, ay] and not zone[goal[0][0], goal[0][1]]
     # Most strips are of the hazard a budget or sequence names; avoid clauses get the mix.
-    spec = states.extras.monitor.spec
     kind, colour = spec.target_kind[:, 0], spec.target_colour[:, 0]
     ground = (kind == LAVA) | (kind == FLOOR)
     cells = np.array([
