@@ -318,14 +318,7 @@ class HazardRooms(Environment):
             cell = jnp.where(kind == LAVA, jnp.asarray(LAVA_CELL), G.cell(FLOOR, colour, 0))
             return jnp.where((strip & ~protect)[..., None], cell, grid), None
 
-        # A loop, not ten unrolled selects: its output is a buffer. Unrolled, XLA fuses the
-        # whole chain into every consumer, and the monitor's dilations and the BFS read each
-        # cell at several shifts, so each read recomputed the layout (a reset 7-26x slower,
-        # docs/decisions.md); the loop gives the same bits.
-        kinds, colours = (jnp.asarray(c, jnp.int32) for c in zip(*STRIPS, strict=True))
-        strips = (kinds, colours, u[13 : 13 + 4 * n].reshape(n, 4), u[15 + 4 * n : 15 + 5 * n])
-        grid, _ = jax.lax.scan(paint, grid, strips)
-        if doorstep is not None:
+        if doorstep is not None:  # before the strips' loop, which never paints a doorstep
             # The cell inside room r in front of each door (door i joins rooms _DOOR_ROOMS[i]).
             steps = jnp.zeros((w, h), bool)
             for i, ((dx, dy), rooms_i) in enumerate(zip(doors, _DOOR_ROOMS, strict=True)):
@@ -335,6 +328,14 @@ class HazardRooms(Environment):
             kind, colour = doorstep[0], doorstep[1]
             cell = jnp.where(kind == LAVA, jnp.asarray(LAVA_CELL), G.cell(FLOOR, colour, 0))
             grid = jnp.where((steps & (kind >= 0))[..., None], cell, grid)
+
+        # A loop, not ten unrolled selects: its output is a buffer. Unrolled, XLA fuses the
+        # whole chain into every consumer, and the monitor's dilations and the BFS read each
+        # cell at several shifts, so each read recomputed the layout (a reset 7-26x slower,
+        # docs/decisions.md); the loop gives the same bits.
+        kinds, colours = (jnp.asarray(c, jnp.int32) for c in zip(*STRIPS, strict=True))
+        strips = (kinds, colours, u[13 : 13 + 4 * n].reshape(n, 4), u[15 + 4 * n : 15 + 5 * n])
+        grid, _ = jax.lax.scan(paint, grid, strips)
         direction = G.randint(u[14 + 4 * n], 0, 4)
         return grid, agent, direction, goal
 
