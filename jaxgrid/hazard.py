@@ -181,6 +181,11 @@ class HazardExtras:
     goal_pos: jax.Array  # int32 (2,)
 
 
+def _on_the_ground(kind: jax.Array) -> jax.Array:
+    """Whether an object kind is a ground hazard (lava or a floor), walked over, not a door."""
+    return (kind == LAVA) | (kind == FLOOR)
+
+
 def _pick(u: jax.Array, mask: jax.Array) -> jax.Array:
     """Uniform index among the True entries of a 1-D ``mask`` (which has at least one)."""
     cum = jnp.cumsum(mask.astype(jnp.int32))
@@ -385,7 +390,7 @@ class HazardRooms(Environment):
                 jax.random.fold_in(key_c, i // TRIES_PER_SENTENCE), table, ctype
             )
             first = jax.tree.map(lambda a: a[0], spec)
-            ground = (first.target_kind == LAVA) | (first.target_kind == FLOOR)
+            ground = _on_the_ground(first.target_kind)
             # Budgets and sequences bind only when their hazard lies across the route; avoid
             # and proximity clauses bind often enough with the plain layout, and are harder to
             # satisfy with more of their hazard.
@@ -393,8 +398,8 @@ class HazardRooms(Environment):
             named = jnp.stack([jnp.where(boost, first.target_kind, -1), first.target_colour])
             # An "after" clause binds only when the route meets its trigger first: a ground
             # trigger lies on the doorsteps out of the agent's room, so every route meets it.
-            on_route = (first.gate == M.AFTER) & ~first.trigger_pickup & (
-                (first.trigger_kind == LAVA) | (first.trigger_kind == FLOOR)
+            on_route = (
+                (first.gate == M.AFTER) & ~first.trigger_pickup & _on_the_ground(first.trigger_kind)
             )
             doorstep = jnp.stack(
                 [jnp.where(on_route, first.trigger_kind, -1), first.trigger_colour]
