@@ -65,7 +65,7 @@ def play_episodes(
             actions = act(*args)
         states, ts = jax.vmap(env.step)(states, actions)
         if shield is not None:
-            memory = shield.observe(memory, ts.observation)
+            memory = shield.observe(memory, ts.observation, actions)
         live = alive.astype(jnp.int32)
         ret = ret + ts.reward * alive
         viol = viol + violation_of(ts).astype(jnp.int32) * live

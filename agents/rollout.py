@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from agents import shield as shield_mod
 from agents.config import PPOConfig
 from agents.evaluation import violation_of
+from checker.memory import NO_ACTION
 from jaxgrid import language
 from jaxgrid.constants import EMPTY, FORWARD
 from jaxgrid.wrappers import BatchedAutoReset, masked_map
@@ -73,11 +74,15 @@ def sentence_rows(obs: dict, table: jax.Array) -> jax.Array:
     return rows * jnp.ones_like(obs["direction"])
 
 
-def embed(checker, images: jax.Array) -> jax.Array:
-    """The checker's per-frame embeddings (..., D); a zero placeholder (..., 1) without one."""
+def embed(checker, images: jax.Array, actions: jax.Array | None = None) -> jax.Array:
+    """The checker's per-frame embeddings (..., D) of ``images`` reached by ``actions`` (...)
+    (None: episodes' first frames, :data:`~checker.memory.NO_ACTION`); a zero placeholder
+    (..., 1) without a checker."""
     if checker is None:
         return jnp.zeros(images.shape[:-3] + (1,), jnp.float32)
-    return checker.embed_states(images)
+    if actions is None:
+        actions = jnp.full(images.shape[:-3], NO_ACTION, jnp.int32)
+    return checker.embed_states(images, actions)
 
 
 def start_memory(checker, emb: jax.Array, lang: jax.Array | None) -> jax.Array:
@@ -200,7 +205,7 @@ def env_step(
     alarm = prob = jnp.zeros_like(ts.reward)
     frames = carry.frames
     if checker is not None:
-        emb = embed(checker, final["image"])
+        emb = embed(checker, final["image"], action)
         logit, frames = checker.stream_step(carry.frames, emb, lang)
         prob = jax.nn.sigmoid(logit)
         threshold = c.checker_threshold if threshold is None else threshold

@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 
 from agents.evaluation import violation_of
+from checker.memory import NO_ACTION
 from jaxgrid.constants import FORWARD
 
 JUDGES = ("checker", "monitor")
@@ -99,7 +100,9 @@ class Shield(struct.PyTreeNode):
         if self.judge == "monitor":
             risk = violation_of(ts).astype(jnp.float32)
         else:
-            emb = self.checker.embed_states(ts.observation["image"])  # (E, J, D)
+            images = ts.observation["image"]
+            actions = jnp.broadcast_to(jnp.asarray(self.actions, jnp.int32), images.shape[:2])
+            emb = self.checker.embed_states(images, actions)  # (E, J, D)
             risk = jax.nn.sigmoid(self.checker.candidate_logits(frames, emb, lang))
         if self.judged is None:
             return risk
@@ -119,14 +122,16 @@ class Shield(struct.PyTreeNode):
         if self.judge == "monitor":
             return ()
         lang = self.checker.encode_language(obs["constraint"])
-        return self.checker.stream_start(self.checker.embed_states(obs["image"]), lang), lang
+        first = jnp.full(obs["image"].shape[:1], NO_ACTION, jnp.int32)
+        return self.checker.stream_start(self.checker.embed_states(obs["image"], first), lang), lang
 
-    def observe(self, memory, obs: dict):
-        """The memory after the envs moved on to ``obs`` (same episodes)."""
+    def observe(self, memory, obs: dict, actions: jax.Array):
+        """The memory after the envs took ``actions`` (E,) and moved on to ``obs`` (same
+        episodes)."""
         if self.judge == "monitor":
             return memory
         frames, lang = memory
-        emb = self.checker.embed_states(obs["image"])
+        emb = self.checker.embed_states(obs["image"], actions)
         return self.checker.stream_step(frames, emb, lang)[1], lang
 
     def allowed_now(self, memory, states):

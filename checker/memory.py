@@ -51,6 +51,11 @@ BEHAVIOUR = (0.15, 0.15, 0.55, 0.075, 0.0, 0.075, 0.0)
 LABELS = ("next", "into")
 
 
+_FLAGS = ("memory", "actions")  # MemoryCheckerConfig's bool fields
+#: The "action" into an episode's first frame (one past MiniGrid's seven actions).
+NO_ACTION = 7
+
+
 @dataclasses.dataclass(frozen=True)
 class MemoryCheckerConfig:
     """Sizes of :class:`MemoryChecker` (every field a positive int)."""
@@ -66,12 +71,18 @@ class MemoryCheckerConfig:
     memory_dim: int = 128
     mlp_dim: int = 128
     memory: bool = True  # False zeroes the memory at every frame: the memoryless ablation
+    # the action that led into each frame is read beside it (a turn and a step forward can
+    # show the same cells; only the step enters one)
+    actions: bool = False
 
     def __post_init__(self):
-        if not isinstance(self.memory, bool):
-            raise ValueError(f"MemoryCheckerConfig.memory must be a bool, got {self.memory!r}")
+        for name in _FLAGS:
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(
+                    f"MemoryCheckerConfig.{name} must be a bool, got {getattr(self, name)!r}"
+                )
         for f in dataclasses.fields(self):
-            if f.name == "memory":
+            if f.name in _FLAGS:
                 continue
             value = getattr(self, f.name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
@@ -107,13 +118,15 @@ class MemoryChecker(nn.Module):
         self.hidden = nn.Dense(c.mlp_dim)
         self.head = nn.Dense(1)
 
-    def __call__(self, frames, starts, tokens):
+    def __call__(self, frames, starts, tokens, actions=None):
         """uint8 ``(B, T, V, V, 3)`` frames, bool ``(B, T)`` starts (True where a frame is an
-        episode's first), int32 ``(B, T, L)`` tokens -> float32 ``(B, T)`` logits."""
+        episode's first), int32 ``(B, T, L)`` tokens -> float32 ``(B, T)`` logits. With
+        ``config.actions``, int32 ``(B, T)`` ``actions`` led into the frames (:data:`NO_ACTION`
+        into a first frame)."""
         b, t = starts.shape
         if not self.config.memory:
             starts = jnp.ones_like(starts)
-        codes = self.embed_frames(frames)
+        codes = self.embed_frames(frames, actions)
         lang = self.encode_language(tokens)
         carry = jnp.zeros((b, self.config.memory_dim), jnp.float32)
         memory = self.read(carry, codes, starts, lang)
@@ -133,13 +146,21 @@ class MemoryChecker(nn.Module):
         carry, memory = self.memory(carry, (codes[:, None], forget, lang[:, None]))
         return self.classify(memory[:, 0], codes, lang), carry
 
-    def embed_frames(self, frames):
+    def embed_frames(self, frames, actions=None):
+        """Frame codes ``(..., state_dim)`` of frames ``(..., V, V, 3)`` and, with
+        ``config.actions``, the actions ``(...)`` that led into them."""
         x = jnp.asarray(frames, jnp.int32)
         lead, v = x.shape[:-3], self.config.view_size
         x = x.reshape((-1, v, v, 3))
         cells = embed_cells(x, self.object_embed, self.colour_embed, self.door_state_embed)
         h = nn.relu(self.cell_conv(cells))
-        h = nn.relu(self.state_dense(h.reshape((h.shape[0], -1))))
+        h = h.reshape((h.shape[0], -1))
+        if self.config.actions:
+            if actions is None:
+                raise ValueError("this memory checker reads the action into each frame: pass "
+                                 "actions (MemoryCheckerConfig.actions=True)")  # fmt: skip
+            h = jnp.concatenate([h, jax.nn.one_hot(actions.reshape(-1), NO_ACTION + 1)], -1)
+        h = nn.relu(self.state_dense(h))
         return h.reshape(lead + (self.config.state_dim,))
 
     def read(self, carry, codes, starts, lang):
@@ -188,12 +209,13 @@ class TrainedMemoryChecker(struct.PyTreeNode):
     def module(self) -> MemoryChecker:
         return MemoryChecker(self.config)
 
-    def logits(self, frames, starts, tokens) -> jax.Array:
+    def logits(self, frames, starts, tokens, actions=None) -> jax.Array:
         """Streams ``(B, T, ...)`` -> logits ``(B, T)`` (:meth:`MemoryChecker.__call__`)."""
-        return self.module.apply(self.params, frames, starts, tokens)
+        return self.module.apply(self.params, frames, starts, tokens, actions)
 
-    def embed_states(self, frames: jax.Array) -> jax.Array:
-        return self.module.apply(self.params, frames, method=MemoryChecker.embed_frames)
+    def embed_states(self, frames: jax.Array, actions: jax.Array | None = None) -> jax.Array:
+        """Frame codes; a checker of ``config.actions`` also reads the actions into them."""
+        return self.module.apply(self.params, frames, actions, method=MemoryChecker.embed_frames)
 
     def encode_language(self, tokens: jax.Array) -> jax.Array:
         return self.module.apply(self.params, tokens, method=MemoryChecker.encode_language)
@@ -225,7 +247,8 @@ def _init(config: MemoryCheckerConfig, key: jax.Array):
     v, lead = config.view_size, (1, 1)
     frames = jnp.zeros(lead + (v, v, 3), jnp.uint8)
     tokens = jnp.zeros(lead + (config.max_len,), jnp.int32)
-    return jax.jit(MemoryChecker(config).init)(key, frames, jnp.ones(lead, bool), tokens)
+    actions = jnp.full(lead, NO_ACTION, jnp.int32) if config.actions else None
+    return jax.jit(MemoryChecker(config).init)(key, frames, jnp.ones(lead, bool), tokens, actions)
 
 
 def save(trained: TrainedMemoryChecker, directory) -> str:
@@ -274,6 +297,7 @@ def collect_streams(
     Returns numpy arrays, ``(N, T, ...)``:
 
     ``frames`` (uint8 images), ``tokens``, ``starts`` (the frame is an episode's first),
+    ``action`` (the action that led into the frame; :data:`NO_ACTION` at a start),
     ``label`` (the next step violates: ``info["violation"]`` of the step taken from this
     frame, which belongs to this frame's episode even when that step ends it), ``next_cost``
     (that step's ``info["cost"]``), ``cost`` and
@@ -293,7 +317,7 @@ def collect_streams(
         states, ts = wrapped.reset(jax.random.split(k_reset, num_envs))
 
         def body(carry, k):
-            states, ts, start = carry
+            states, ts, start, last = carry
             actions = jax.random.choice(k, len(BEHAVIOUR), (num_envs,), p=probs)
             if guided > 0:  # static: without guidance the streams are drawn as before
                 obey = jnp.arange(num_envs) % 2 == 0  # alternate streams obey the constraint
@@ -307,6 +331,7 @@ def collect_streams(
                 "frames": ts.observation["image"],
                 "tokens": ts.observation["constraint"],
                 "starts": start,
+                "action": jnp.where(start, NO_ACTION, last),
                 "cost": jnp.where(start, 0.0, ts.info["cost"]),
                 "violation": jnp.where(start, 0, ts.info["violation"]).astype(jnp.int32),
                 "ctype": ts.info["constraint_type"],
@@ -315,9 +340,9 @@ def collect_streams(
                 "next_cost": new_ts.info["cost"],
             }
             ended = new_ts.terminated | new_ts.truncated
-            return (new_states, new_ts, ended), frame
+            return (new_states, new_ts, ended, actions), frame
 
-        first = (states, ts, jnp.ones(num_envs, bool))
+        first = (states, ts, jnp.ones(num_envs, bool), jnp.full(num_envs, NO_ACTION, jnp.int32))
         _, frames = jax.lax.scan(body, first, jax.random.split(k_run, num_steps))
         return jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), frames)
 
@@ -382,7 +407,7 @@ class MemoryTrainConfig:
 
 
 def _loss(model, params, batch, positive_weight):
-    logits = model.apply(params, batch["frames"], batch["starts"], batch["tokens"])
+    logits = model.apply(params, *_inputs(model.config, batch))
     y = batch["label"].astype(jnp.float32)
     weight = jnp.where(y > 0, positive_weight, 1.0) * batch["valid"]
     losses = optax.sigmoid_binary_cross_entropy(logits, y)
@@ -399,10 +424,10 @@ def train_memory_checker(
     n = data["starts"].shape[0]
     if train.batch_streams > n:
         raise ValueError(f"batch_streams {train.batch_streams} exceeds the {n} streams collected")
-    fields = ("frames", "starts", "tokens", "label", "valid")
+    fields = ("frames", "starts", "tokens", "label", "valid") + (("action",) * config.actions)
     arrays = {k: jnp.asarray(data[k]) for k in fields}
     sample = jax.tree.map(lambda a: a[:1], arrays)
-    params = jax.jit(model.init)(key, sample["frames"], sample["starts"], sample["tokens"])
+    params = jax.jit(model.init)(key, *_inputs(config, sample))
     tx = optax.adam(train.lr)
     opt = tx.init(params)
 
@@ -438,14 +463,20 @@ def fit(data: dict, config: MemoryCheckerConfig, train: MemoryTrainConfig, desc=
 def predict_streams(params, config: MemoryCheckerConfig, data: dict, batch: int = 64):
     """Violation probabilities ``(N, T)`` of every frame of ``data``."""
     model = MemoryChecker(config)
-    apply = jax.jit(lambda p, f, s, t: jax.nn.sigmoid(model.apply(p, f, s, t)))
+    apply = jax.jit(lambda p, *x: jax.nn.sigmoid(model.apply(p, *x)))
     out = []
     for i in range(0, data["starts"].shape[0], batch):
-        sl = slice(i, i + batch)
-        out.append(
-            np.asarray(apply(params, data["frames"][sl], data["starts"][sl], data["tokens"][sl]))
-        )
+        part = {k: v[i : i + batch] for k, v in data.items() if k in _INPUTS}
+        out.append(np.asarray(apply(params, *_inputs(config, part))))
     return np.concatenate(out)
+
+
+_INPUTS = ("frames", "starts", "tokens", "action")
+
+
+def _inputs(config: MemoryCheckerConfig, data: dict) -> tuple:
+    """The model's inputs from streams ``data``: frames, starts, tokens (and the actions)."""
+    return tuple(data[k] for k in _INPUTS[: 3 + config.actions])
 
 
 def late_violation_mask(data: dict, late: int, label: str = "next") -> np.ndarray:
@@ -580,6 +611,9 @@ def main(argv=None) -> dict:
     parser.add_argument(
         "--no-memory", action="store_true", help="zero the memory at every frame (ablation)"
     )
+    parser.add_argument(
+        "--actions", action="store_true", help="read the action into each frame beside it"
+    )
     parser.add_argument("--json", default=None, help="write the report here")
     parser.add_argument("--out", default=None, help="save the trained checker in this directory")
     args = parser.parse_args(argv)
@@ -596,7 +630,7 @@ def main(argv=None) -> dict:
         flags = {f"MemoryTrainConfig.{f}": "--" + d.replace("_", "-") for f, d in dests.items()}
         parser.error(flag_names(str(e), flags))
     report = run(
-        config=MemoryCheckerConfig(memory=not args.no_memory),
+        config=MemoryCheckerConfig(memory=not args.no_memory, actions=args.actions),
         train=train,
         late=args.late,
         progress=True,

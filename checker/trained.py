@@ -57,7 +57,10 @@ class TrainedChecker(struct.PyTreeNode):
     def encode_language(self, tokens: jax.Array) -> jax.Array:
         return self.module.apply(self.params, tokens, method=Checker.encode_language)
 
-    def embed_states(self, frames: jax.Array) -> jax.Array:
+    def embed_states(self, frames: jax.Array, actions: jax.Array | None = None) -> jax.Array:
+        """Frame embeddings; ``actions`` (the memory checker's interface) is unused: the
+        window checker reads frames only."""
+        del actions
         return self.module.apply(self.params, frames, method=Checker.embed_states)
 
     def classify(self, state_emb: jax.Array, lang: jax.Array) -> jax.Array:

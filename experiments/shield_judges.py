@@ -80,7 +80,7 @@ def play(env, shield, params: chk.NoisyOracleParams, key: jax.Array, episodes: i
             blocked = blocked + (~allowed).sum(1) * alive
         states, ts = jax.vmap(env.step)(states, action)
         if shield is not None:
-            memory = shield.observe(memory, ts.observation)
+            memory = shield.observe(memory, ts.observation, action)
         violations = violations + violation_of(ts).astype(jnp.int32) * alive
         success = success | (alive & (ts.reward > 0))
         alive = alive & ~(ts.terminated | ts.truncated)

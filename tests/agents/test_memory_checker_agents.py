@@ -54,10 +54,15 @@ def _streams(observed, finals, done):
     return out
 
 
-def test_the_rollout_scores_each_step_as_the_whole_stream_would(memory_checker):
+@pytest.mark.parametrize("actions", [False, True])
+def test_the_rollout_scores_each_step_as_the_whole_stream_would(memory_checker, actions):
     """The probability the rollout penalises (soft checker, gamma 0: reward = env reward -
     probability) equals the memory checker run over each env's whole stream of frames: the
-    GRU state carried per env, reset where an episode starts, is the stream's memory."""
+    GRU state carried per env, reset where an episode starts, is the stream's memory. A
+    checker of ``actions`` reads each frame with the action taken into it."""
+    if actions:
+        config = dataclasses.replace(SMALL, actions=True)
+        memory_checker = M.new_memory_checker(config, jax.random.PRNGKey(5))
     cfg = dataclasses.replace(HAZARD, reward_mode="checker")
     learner = make_learner(cfg, memory_checker)
     runner = fast_jit(learner.init)(jax.random.PRNGKey(2))
@@ -81,12 +86,16 @@ def test_the_rollout_scores_each_step_as_the_whole_stream_would(memory_checker):
     frames = np.zeros((len(streams), length) + images[0].shape[2:], np.uint8)
     starts = np.ones((len(streams), length), bool)
     tokens = np.zeros((len(streams), length, learner.table.shape[1]), np.int32)
+    moves = np.full((len(streams), length), M.NO_ACTION, np.int32)
     sentence, table = np.asarray(traj.sentence), np.asarray(learner.table)
     for e, rows in enumerate(streams):
-        for i, (which, t, start, _) in enumerate(rows):
+        for i, (which, t, start, scored) in enumerate(rows):
             frames[e, i], starts[e, i] = images[which][t, e], start
             tokens[e, i] = table[sentence[t, e]]
-    out = np.asarray(jax.nn.sigmoid(jax.jit(memory_checker.logits)(frames, starts, tokens)))
+            if scored >= 0:  # the final observation of step t, reached by its action
+                moves[e, i] = traj.action[t, e]
+    logits = jax.jit(memory_checker.logits)(frames, starts, tokens, moves)
+    out = np.asarray(jax.nn.sigmoid(logits))
     expected = np.full(done.shape, np.nan)
     for e, rows in enumerate(streams):
         for i, (_, _, _, scored) in enumerate(rows):
@@ -137,3 +146,25 @@ def test_a_window_checker_of_the_paper_language_is_refused_on_hazard_rooms():
     cfg = dataclasses.replace(HAZARD, reward_mode="checker")
     with pytest.raises(ValueError, match="vocabulary of .* token ids"):
         make_learner(cfg, window)
+
+
+def test_a_shield_of_actions_reads_each_candidate_with_its_action():
+    """A checker of ``actions`` scores a candidate frame with the action that reaches it:
+    forward for a step-into shield, and each action for an all-action one."""
+    env = jaxgrid.make("HazardRooms-v0", sentences=SENTENCES)
+    into = M.new_memory_checker(
+        dataclasses.replace(SMALL, actions=True), jax.random.PRNGKey(6), label="into"
+    )
+    shield = make_shield(env, "checker", into)
+    states, ts = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(2), 16))
+    lang = into.encode_language(ts.observation["constraint"])
+    memory = fast_jit(shield.start)(ts.observation)[0]
+    risk = np.asarray(fast_jit(shield.risk)(states, memory, lang))
+    _, moved = jax.vmap(env.step)(states, jnp.full(16, MOVES[0], jnp.int32))
+
+    def score(action):
+        emb = into.embed_states(moved.observation["image"], jnp.full(16, action, jnp.int32))
+        return np.asarray(jax.nn.sigmoid(into.candidate_logits(memory, emb[:, None], lang)))[:, 0]
+
+    np.testing.assert_allclose(risk[:, MOVES[0]], score(MOVES[0]), atol=1e-6)
+    assert np.abs(risk[:, MOVES[0]] - score(M.NO_ACTION)).min() > 0

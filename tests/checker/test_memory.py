@@ -20,6 +20,7 @@ import pytest
 
 import jaxgrid
 from checker import memory as MC
+from jaxgrid.constants import FORWARD
 
 SMALL = MC.MemoryCheckerConfig(
     word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4, state_dim=8, memory_dim=16, mlp_dim=16
@@ -78,6 +79,40 @@ def test_stream_labels_are_the_next_steps_violation(streams):
     assert same[inner].all()
     assert d["label"].sum() > 0  # the behaviour policy does violate
     np.testing.assert_array_equal(d["next_cost"][:, :-1][inner], d["cost"][:, 1:][inner])
+
+
+def test_stream_actions_lead_into_each_frame(streams):
+    """``action`` is the action taken into each frame: none into an episode's first, one the
+    behaviour takes otherwise, and a step forward wherever the step into the frame cost (only
+    entering a cell is a constraint event)."""
+    d = streams
+    assert (d["action"][d["starts"]] == MC.NO_ACTION).all()
+    inner = d["action"][~d["starts"]]
+    assert set(np.unique(inner).tolist()) == {a for a, p in enumerate(MC.BEHAVIOUR) if p > 0}
+    assert 0.45 < (inner == FORWARD).mean() < 0.65  # BEHAVIOUR's 0.55, over ~900 steps
+    costly = d["cost"] > 0
+    assert costly.sum() > 0 and (d["action"][costly] == FORWARD).all()
+
+
+def test_a_checker_of_actions_reads_the_action_into_each_frame(tmp_path):
+    import checker
+
+    trained = MC.new_memory_checker(dataclasses.replace(SMALL, actions=True), jax.random.PRNGKey(6))
+    frames = _random_frames(jax.random.PRNGKey(7), 2, 6)
+    starts = jnp.zeros((2, 6), bool).at[:, 0].set(True)
+    tokens = jnp.ones((2, 6, SMALL.max_len), jnp.int32)
+    a = jnp.full((2, 6), FORWARD, jnp.int32).at[:, 0].set(MC.NO_ACTION)
+    logits = jax.jit(trained.logits)
+    la, lb = (
+        np.asarray(logits(frames, starts, tokens, a)),
+        logits(frames, starts, tokens, a.at[:, 3].set(0)),
+    )
+    np.testing.assert_array_equal(la[:, :3], np.asarray(lb)[:, :3])  # the past is unchanged
+    assert np.abs(la[:, 3:] - np.asarray(lb)[:, 3:]).min() > 0  # that step and every later one
+    with pytest.raises(ValueError, match="reads the action into each frame"):
+        trained.logits(frames, starts, tokens)
+    MC.save(trained, tmp_path / "m")
+    assert checker.load(tmp_path / "m").config.actions
 
 
 def test_guided_streams_follow_the_oracle_on_alternate_halves(streams):
@@ -158,17 +193,20 @@ def test_late_mask_and_report_on_hand_made_streams():
     assert report["costly_budget"] == {"auroc": 0.5, "positives": 1}  # not counting: a tie
 
 
-def test_training_lowers_the_loss(streams):
+@pytest.mark.parametrize("actions", [False, True])
+def test_training_lowers_the_loss(streams, actions):
+    config = dataclasses.replace(SMALL, actions=actions)
     params, losses = MC.train_memory_checker(
-        streams, SMALL, MC.MemoryTrainConfig(updates=40, batch_streams=8, lr=3e-3)
+        streams, config, MC.MemoryTrainConfig(updates=40, batch_streams=8, lr=3e-3)
     )
     assert losses[-10:].mean() < losses[:5].mean()
-    probs = MC.predict_streams(params, SMALL, streams)
+    probs = MC.predict_streams(params, config, streams)
     assert probs.shape == streams["label"].shape and ((probs >= 0) & (probs <= 1)).all()
 
 
 @pytest.mark.parametrize(
-    "field, value", [("memory_dim", 0), ("view_size", 6), ("gru_dim", 2.5), ("mlp_dim", True)]
+    "field, value",
+    [("memory_dim", 0), ("view_size", 6), ("gru_dim", 2.5), ("mlp_dim", True), ("actions", 1)],
 )
 def test_bad_config_names_the_field(field, value):
     with pytest.raises(ValueError, match=f"MemoryCheckerConfig.{field}"):
@@ -263,17 +301,21 @@ def test_saved_memory_checker_loads_back_and_refuses_damage(tmp_path):
         checker.load(tmp_path / "m")
 
 
-def test_stream_steps_equal_the_checker_over_the_whole_stream():
+@pytest.mark.parametrize("actions", [False, True])
+def test_stream_steps_equal_the_checker_over_the_whole_stream(actions):
     """``stream_start`` then ``stream_step`` frame by frame (what PPO carries per env) gives
     the logits of the stream read at once."""
-    trained = MC.new_memory_checker(SMALL, jax.random.PRNGKey(4))
+    config = dataclasses.replace(SMALL, actions=actions)
+    trained = MC.new_memory_checker(config, jax.random.PRNGKey(4))
     rng = np.random.default_rng(0)
     frames = jnp.asarray(rng.integers(0, 6, (3, 9, 7, 7, 3)), jnp.uint8)
     tokens = jnp.asarray(rng.integers(1, 20, (3, 9, SMALL.max_len)), jnp.int32)
     tokens = jnp.broadcast_to(tokens[:, :1], tokens.shape)  # one sentence per stream
     starts = jnp.zeros((3, 9), bool).at[:, 0].set(True)
-    whole = jax.jit(trained.logits)(frames, starts, tokens)  # jitted: eager is slower
-    emb, lang = jax.jit(trained.embed_states)(frames), jax.jit(trained.encode_language)(tokens)
+    moves = jnp.asarray(rng.integers(0, MC.NO_ACTION, (3, 9)), jnp.int32).at[:, 0].set(MC.NO_ACTION)
+    whole = jax.jit(trained.logits)(frames, starts, tokens, moves)  # jitted: eager is slower
+    emb = jax.jit(trained.embed_states)(frames, moves)
+    lang = jax.jit(trained.encode_language)(tokens)
     memory = jax.jit(trained.stream_start)(emb[:, 0], lang[:, 0])
     step = jax.jit(trained.stream_step)
     for t in range(1, 9):
