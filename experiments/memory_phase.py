@@ -58,6 +58,9 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
             made = report.get("training", {}).get("guided")
             if made != settings.guided:  # a resume with another --memory-guided
                 raise ValueError(f"{ckpt} was trained with guided {made}, not {settings.guided}")
+            if trained.config.actions != cfg.checker_actions:  # another --checker-actions
+                raise ValueError(f"{ckpt} reads actions: {trained.config.actions}, and "
+                                 f"--checker-actions is {cfg.checker_actions}")  # fmt: skip
             return trained, report
         except (ValueError, FileNotFoundError) as e:
             _redo(phase, e)
@@ -65,7 +68,7 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
     key = jax.random.PRNGKey(cfg.seed)
     data = memory.collect_streams(env, key, settings.streams, settings.steps, settings.guided)
     data = memory.relabel(data, settings.label)
-    config = memory.MemoryCheckerConfig(view_size=env.view_size)
+    config = memory.MemoryCheckerConfig(view_size=env.view_size, actions=cfg.checker_actions)
     params, losses = memory.fit(data, config, settings, phase if cfg.progress else None)
     threshold = cfg.ppo.checker_threshold
     trained = memory.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
@@ -86,7 +89,8 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
         "details": {"test": metrics},
         "training": {"updates": settings.updates, "streams": settings.streams,
                      "steps": settings.steps, "label": settings.label,
-                     "guided": settings.guided, "train_positives": int(data["label"].sum()),
+                     "guided": settings.guided, "actions": config.actions,
+                     "train_positives": int(data["label"].sum()),
                      "final_loss": float(np.mean(losses[-50:]))},
         "params_sha256": params_sha256(ckpt),
     }  # fmt: skip

@@ -138,6 +138,9 @@ class ExperimentConfig:
     # where trained agents go; a penalty wants the late budget violations that the random
     # streams hold more of (docs/decisions.md). --checker replaces the other checker only.
     shield_guided: float | None = None
+    # The memory checkers read the action into each frame beside it: a turn and a step
+    # forward can show the same cells, and only the step enters one (docs/decisions.md)
+    checker_actions: bool = False
 
     def __post_init__(self):
         if self.checker_env_id is None:
@@ -172,6 +175,11 @@ class ExperimentConfig:
                 raise ValueError(f"{me}.shield_guided: the shield's own checker is a memory "
                                  f"checker, and {self.experiment} trains a "
                                  f"{self.checker_kind} checker")  # fmt: skip
+        if not isinstance(self.checker_actions, bool):
+            raise ValueError(f"{me}.checker_actions must be a bool, got {self.checker_actions!r}")
+        if self.checker_actions and self.checker_kind != "memory":
+            raise ValueError(f"{me}.checker_actions: only a memory checker reads actions, and "
+                             f"{self.experiment} trains a {self.checker_kind} checker")  # fmt: skip
         eps = self.collect_epsilon
         if not _is_share(eps):
             raise ValueError(f"{me}.collect_epsilon must be a number in [0, 1], got {eps!r}")
@@ -368,7 +376,7 @@ PHASES = {"window": "behaviour agent, checker data, checker",
 # Flags that mean nothing for one kind of checker, hidden from its experiments' command line.
 UNUSED_FLAGS: dict[str, cli.Names] = {
     "window": {MemoryTrainConfig: {f.name: None for f in dataclasses.fields(MemoryTrainConfig)},
-               ExperimentConfig: {"shield_guided": None}},
+               ExperimentConfig: {"shield_guided": None, "checker_actions": None}},
     "memory": {
         ExperimentConfig: {"behaviour_steps": None, "checker_samples": None,
                            "collect_max_steps": None, "collect_epsilon": None},

@@ -36,6 +36,7 @@ def test_each_experiment_shows_the_flags_of_its_checker(capsys):
     assert WINDOW_FLAGS <= set(window) and not MEMORY_FLAGS & set(window)
     assert "(default: 0.5)" in hazard["--shield-guided"] and "--shield-guided" not in window
     assert "(default: 600)" in hazard["--memory-updates"]
+    assert "--checker-actions" in hazard and "--checker-actions" not in window
 
 
 def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and_novelty():
@@ -67,6 +68,11 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
     assert preset(two_rooms.SCENARIO).memory_checker.label == "next"
     with pytest.raises(ValueError, match="ExperimentConfig.checker_kind must be one of"):
         dataclasses.replace(cfg, checker_kind="lstm")
+    with pytest.raises(ValueError, match="checker_actions: only a memory checker reads actions, "
+                                         "and two_rooms trains a window checker"):
+        dataclasses.replace(preset(two_rooms.SCENARIO), checker_actions=True)
+    with pytest.raises(ValueError, match="ExperimentConfig.checker_actions must be a bool"):
+        dataclasses.replace(cfg, checker_actions=1)
 
 
 @pytest.mark.parametrize(
@@ -123,6 +129,7 @@ def _fake_streams(env, key, n, t, guided=0.0):
     return {
         "frames": rng.integers(0, 6, (n, t, 7, 7, 3)).astype(np.uint8),
         "tokens": tokens, "starts": starts,
+        "action": np.where(starts, MC.NO_ACTION, rng.integers(0, MC.NO_ACTION, (n, t))),
         "label": (rng.random((n, t)) < 0.2).astype(np.int32),
         "next_cost": (rng.random((n, t)) < 0.3).astype(np.float32),
         "cost": np.zeros((n, t), np.float32), "violation": np.zeros((n, t), np.int32),
@@ -149,6 +156,24 @@ def test_the_memory_phase_is_skipped_when_done_and_redone_when_damaged(
     write_json(tmp_path / "checker.json", {**report, "params_sha256": "0" * 64})
     memory_phase.train_memory_checker(cfg, tmp_path)
     assert "c. memory checker: redoing this phase" in capsys.readouterr().err
+
+
+def test_the_memory_phase_trains_a_checker_of_actions_when_asked(tmp_path, capsys, monkeypatch):
+    """``checker_actions`` gives a checker that reads the action into each frame; a resume
+    that asks otherwise retrains it, with a message."""
+    monkeypatch.setattr(MC, "collect_streams", _fake_streams)
+    cfg = dataclasses.replace(
+        preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
+        memory_checker=MC.MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
+        checker_actions=True,
+    )  # fmt: skip
+    trained, report = memory_phase.train_memory_checker(cfg, tmp_path)
+    assert trained.config.actions and report["training"]["actions"] is True
+    plain, _ = memory_phase.train_memory_checker(
+        dataclasses.replace(cfg, checker_actions=False), tmp_path
+    )
+    assert not plain.config.actions
+    assert "reads actions: True, and --checker-actions is False" in capsys.readouterr().err
 
 
 def test_the_shields_own_checker_is_a_phase_of_its_own(tmp_path, capsys, monkeypatch):
