@@ -12,6 +12,11 @@ ago. :class:`MemoryChecker` carries a recurrent state through the episode instea
 * an MLP on ``[memory, frame code, sentence code]`` gives one logit per step: will the next
   step violate the constraint (labels "just before", as the paper's)?
 
+With ``MemoryCheckerConfig.actions`` the frame code also reads the action that led into the
+frame: a turn and a step forward can show the same cells, and only the step enters one, so a
+checker of the step into each frame (``label="into"``) needs it most. A learner knows the
+action it took, and a shield the action of each candidate.
+
 Usage: ``python -m checker.memory --json runs/memory_checker.json`` (``--help`` for flags).
 
 Data are whole streams of ``BatchedAutoReset(HazardRooms)`` under a random behaviour policy
@@ -424,7 +429,7 @@ def train_memory_checker(
     n = data["starts"].shape[0]
     if train.batch_streams > n:
         raise ValueError(f"batch_streams {train.batch_streams} exceeds the {n} streams collected")
-    fields = ("frames", "starts", "tokens", "label", "valid") + (("action",) * config.actions)
+    fields = _inputs_named(config) + ("label", "valid")
     arrays = {k: jnp.asarray(data[k]) for k in fields}
     sample = jax.tree.map(lambda a: a[:1], arrays)
     params = jax.jit(model.init)(key, *_inputs(config, sample))
@@ -466,17 +471,22 @@ def predict_streams(params, config: MemoryCheckerConfig, data: dict, batch: int 
     apply = jax.jit(lambda p, *x: jax.nn.sigmoid(model.apply(p, *x)))
     out = []
     for i in range(0, data["starts"].shape[0], batch):
-        part = {k: v[i : i + batch] for k, v in data.items() if k in _INPUTS}
-        out.append(np.asarray(apply(params, *_inputs(config, part))))
+        part = (data[k][i : i + batch] for k in _inputs_named(config))
+        out.append(np.asarray(apply(params, *part)))
     return np.concatenate(out)
 
 
 _INPUTS = ("frames", "starts", "tokens", "action")
 
 
+def _inputs_named(config: MemoryCheckerConfig) -> tuple[str, ...]:
+    """The names of the model's inputs: frames, starts, tokens (and the actions it reads)."""
+    return _INPUTS if config.actions else _INPUTS[:3]
+
+
 def _inputs(config: MemoryCheckerConfig, data: dict) -> tuple:
-    """The model's inputs from streams ``data``: frames, starts, tokens (and the actions)."""
-    return tuple(data[k] for k in _INPUTS[: 3 + config.actions])
+    """The model's inputs (:func:`_inputs_named`) from streams ``data``."""
+    return tuple(data[k] for k in _inputs_named(config))
 
 
 def late_violation_mask(data: dict, late: int, label: str = "next") -> np.ndarray:
