@@ -419,7 +419,7 @@ def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
     naming the file.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
-    outs = [b for a, b in zip(argv, argv[1:] + [""], strict=True) if a == "--out"]
+    outs = [argv[i + 1] if i + 1 < len(argv) else "" for i, a in enumerate(argv) if a == "--out"]
     outs += [a.split("=", 1)[1] for a in argv if a.startswith("--out=")]
     try:  # a run already writing into --out: refused at once, before the flags are parsed
         if outs and outs[-1]:
