@@ -8,16 +8,21 @@ declares it. Ints also accept ``1e6``. A config validates itself on construction
 ``ValueError`` names ``Class.field``, which the command line replaces with the flag and reports
 as a usage error (exit status 2), before anything is compiled. Unknown flags and values of the
 wrong type are tyro's usage errors, also exit status 2.
+
+:func:`run_main` is how every ``python -m ...`` of this project runs its ``main``: a user's
+mistake (a bad flag value, path or artefact, a missing optional dependency) is one line and
+exit status 2, Ctrl-C is exit status 130 at once; a bug keeps its traceback.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import re
 import sys
-from collections.abc import Mapping, Sequence
-from typing import Annotated, TypeVar
+from collections.abc import Callable, Mapping, Sequence
+from typing import Annotated, NoReturn, TypeVar
 
 import tyro
 from tyro.constructors import (
@@ -36,14 +41,21 @@ class _Invalid(Exception):
     """A config rejected its values: a usage error."""
 
 
+# Integer flags (seeds, sizes, step budgets) are at most this: a seed becomes a 32-bit PRNG
+# key, and no size of this project comes near it.
+INT_MAX = 2**31 - 1
+
+
 def _int(args: list[str]) -> int:
     text = args[0]
     try:
-        value = float(text)  # accepts 1e6
+        value = int(text) if text.lstrip("+-").isdigit() else float(text)  # accepts 1e6
     except ValueError:
         raise ValueError(f"{text!r} is not an integer") from None
-    if value != int(value):
+    if isinstance(value, float) and (not math.isfinite(value) or value != int(value)):
         raise ValueError(f"{text!r} is not an integer")
+    if abs(value) > INT_MAX:
+        raise ValueError(f"{text!r} is out of range (at most {INT_MAX} in size)")
     return int(value)
 
 
@@ -127,3 +139,37 @@ def parse(
         print(f"usage: {prog} [-h] [OPTIONS]\nerror: {e}\n(`{prog} --help` lists every flag and "
               "its default)", file=sys.stderr)  # fmt: skip
         raise SystemExit(2) from None
+
+
+# What a user's mistake raises: shown as one line, exit status 2. ImportError: an optional
+# dependency (navix, xminigrid, minigrid) that is not installed.
+USER_ERRORS = (ValueError, OSError, ImportError)
+
+
+def run_main(main: Callable[[], object], prog: str | None = None) -> NoReturn:
+    """Run ``main()`` as a command and end the process.
+
+    ``SystemExit`` keeps its status; a :data:`USER_ERRORS` exception prints ``error: ...``
+    and exits with 2 (``JAXGRID_TRACEBACK=1`` re-raises it, for debugging); Ctrl-C prints
+    ``interrupted`` unless ``main`` said more, and exits with 130 through
+    :func:`jaxgrid.rundir.exit_now`: at once (a write in progress is finished first), with no
+    interpreter teardown, which can crash while XLA still compiles or runs in another thread.
+    """
+    from jaxgrid.rundir import LockHeld, exit_now
+
+    prog = prog or os.path.basename(sys.argv[0])
+    try:
+        main()
+    except KeyboardInterrupt:
+        print("\ninterrupted", file=sys.stderr)
+        exit_now(130)
+    except SystemExit as e:
+        if e.code == 130:  # main said what was kept; leave without waiting for threads
+            exit_now(130)
+        raise
+    except (*USER_ERRORS, LockHeld) as e:
+        if os.environ.get("JAXGRID_TRACEBACK"):
+            raise
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        exit_now(2)
+    raise SystemExit(0)

@@ -9,24 +9,55 @@
 - :func:`sha256_bytes` / :func:`sha256_file`: the digest recorded in a parameter file's JSON
   sidecar and checked when the file is loaded, so a truncated or bit-flipped file is refused
   instead of loading as different numbers.
+- :func:`writing` / :func:`exit_now`: a command interrupted by Ctrl-C leaves at once, without
+  waiting for a compile or a training chunk in another thread (and without the interpreter's
+  teardown, which can crash under a running XLA computation), but never in the middle of a
+  write made under :func:`writing`; the run locks it holds are released first.
 
 Standard library only.
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import hashlib
 import json
 import os
 import socket
 import sys
+import threading
 from pathlib import Path
 
-__all__ = ["LOCK_FILE", "LockHeld", "RunLock", "check_free", "lock", "sha256_bytes",
-           "sha256_file"]
+__all__ = ["LOCK_FILE", "LockHeld", "RunLock", "check_free", "exit_now", "lock",
+           "sha256_bytes", "sha256_file", "writing"]
 
 LOCK_FILE = ".lock"
+# Held while an artefact is written that a partial write would damage (a checkpoint and the
+# digests recorded beside it); exit_now waits for it. Re-entrant: a save may nest writes.
+_WRITING = threading.RLock()
+_HELD: set[RunLock] = set()  # the run locks this process holds, released by exit_now
+
+
+@contextlib.contextmanager
+def writing():
+    """Hold the process's write lock for the block: :func:`exit_now` does not cut it short."""
+    with _WRITING:
+        yield
+
+
+def exit_now(code: int, wait_s: float = 5.0) -> None:
+    """End the process with status ``code`` at once: wait up to ``wait_s`` for a write under
+    :func:`writing` to finish, release the run locks held, flush stdout and stderr, then
+    ``os._exit`` (no interpreter teardown, no waiting for other threads)."""
+    _WRITING.acquire(timeout=wait_s)  # kept until the process ends: no write starts now
+    for held in list(_HELD):
+        with contextlib.suppress(OSError):
+            held.release()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
 
 
 class LockHeld(RuntimeError):
@@ -97,6 +128,7 @@ class RunLock:
             with os.fdopen(fd, "w") as f:
                 json.dump(me, f)
             self.held = True
+            _HELD.add(self)
             return self
         raise LockHeld(self._held_message(self._holder()))
 
@@ -105,6 +137,7 @@ class RunLock:
         if self.held:
             self.path.unlink(missing_ok=True)
             self.held = False
+            _HELD.discard(self)
 
     def __enter__(self) -> RunLock:
         return self if self.held else self.acquire()
