@@ -26,6 +26,7 @@ one's memory checker. Every other setting, the outputs and the statistics are th
 :mod:`experiments.pipeline`; ``--help`` lists the flags.
 """
 
+from checker.cli import run_main
 from experiments.pipeline import main, override, scenario
 
 # One or two sentences of each type; budgets and the trigger concern hazards across the routes.
@@ -46,4 +47,4 @@ SCENARIO = override(
 )  # fmt: skip
 
 if __name__ == "__main__":
-    main(SCENARIO)
+    run_main(lambda: main(SCENARIO), "python -m experiments.hazard_rooms")

@@ -264,24 +264,44 @@ def _transfer(cfg, trained, report: dict) -> dict | None:
     return _rates(metrics)
 
 
-def reuse_checker(cfg):
-    """``--checker DIR``: load it and its report (``report.json`` of a pipeline run, or
-    ``metrics.json`` of ``python -m checker``), which must name the parameters' checksum: a
-    report of other parameters is refused."""
+def load_reused(cfg):
+    """``--checker DIR`` loaded and checked against ``cfg`` before anything is written or
+    compiled: a checker whose kind, window, label timing (``--lookahead`` / ``--memory-label``),
+    inputs (``--checker-actions``) or view size differ from the experiment's is refused by
+    name, since its alarms would mean something else (its vocabulary and sentence length are
+    checked by :func:`checker.load`). Returns the trained checker."""
     path = Path(cfg.checker)
     trained = chk.load(path)
-    kind = trained.kind
+    kind, flag = trained.kind, f"--checker {path}"
     if kind != cfg.checker_kind:
-        raise ValueError(f"--checker {path}: a {kind} checker, and {cfg.experiment} trains its "
-                         f"agents with a {cfg.checker_kind} checker")  # fmt: skip
-    window = cfg.checker_train.window
-    if kind == "window" and trained.config.window != window:
-        raise ValueError(f"--checker {path}: window {trained.config.window} != --window "
-                         f"{window}")  # fmt: skip
-    label = cfg.memory_checker.label  # what a shield and a penalty read from its alarms
-    if kind == "memory" and trained.label != label:
-        raise ValueError(f"--checker {path}: label {trained.label!r} != --memory-label "
-                         f"{label!r}")  # fmt: skip
+        raise ValueError(f"{flag}: a {kind} checker, and {cfg.experiment} trains its agents "
+                         f"with a {cfg.checker_kind} checker")  # fmt: skip
+    view = cfg.ppo.make_env().view_size
+    if trained.config.view_size != view:
+        raise ValueError(f"{flag}: trained on {trained.config.view_size}x"
+                         f"{trained.config.view_size} views, and {cfg.env_id} shows {view}x"
+                         f"{view}")  # fmt: skip
+    if kind == "window":
+        mismatch = [("window", trained.config.window, cfg.checker_train.window, "--window"),
+                    ("lookahead", trained.lookahead, cfg.checker_train.lookahead,
+                     "--lookahead")]  # fmt: skip
+    else:
+        mismatch = [("label", trained.label, cfg.memory_checker.label, "--memory-label"),
+                    ("actions", trained.config.actions, cfg.checker_actions,
+                     "--checker-actions")]  # fmt: skip
+    for name, theirs, mine, option in mismatch:
+        if theirs != mine:
+            raise ValueError(f"{flag}: trained with {name} {theirs!r}, and this run asks for "
+                             f"{option} {mine!r}; pass {option} {theirs!r} to use it, or omit "
+                             "--checker to train one")  # fmt: skip
+    return trained
+
+
+def reuse_checker(cfg, trained):
+    """``--checker DIR`` (``trained``, from :func:`load_reused`) and its report
+    (``report.json`` of a pipeline run, or ``metrics.json`` of ``python -m checker``), which
+    must name the parameters' checksum: a report of other parameters is refused."""
+    path = Path(cfg.checker)
     digest = params_sha256(path)
     found = [path / name for name in ("report.json", "metrics.json") if (path / name).exists()]
     if not found:
@@ -351,8 +371,7 @@ class Workers:
     finished 1.2x (TwoRooms) to 1.4x (HazardRooms) sooner than one after the other, with
     bit-identical results (``python -m benchmarks.threads``, ``docs/decisions.md``); three
     at once gained less. ``n`` 1 runs them one after the other. :meth:`close` sets
-    :attr:`cancel`, which every run checks before each chunk, so that Ctrl-C stops the
-    threads at their next checkpoint, then waits for them.
+    :attr:`cancel`, which every run checks before each chunk.
     """
 
     def __init__(self, n: int):
@@ -373,9 +392,12 @@ class Workers:
                 raise job.exception()
         return {name: job.result() for name, job in jobs.items()}
 
-    def close(self) -> None:
+    def close(self, wait: bool = True) -> None:
+        """Stop the threads at their next chunk; ``wait`` for them (Ctrl-C does not: a
+        command then leaves at once through :func:`jaxgrid.rundir.exit_now`, which waits
+        only for a checkpoint being written)."""
         self.cancel.set()
-        self.pool.shutdown(wait=True, cancel_futures=True)
+        self.pool.shutdown(wait=wait, cancel_futures=True)
 
 
 class Compiler:

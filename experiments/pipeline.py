@@ -41,6 +41,7 @@ import argparse
 import dataclasses
 import datetime
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -293,10 +294,10 @@ def preset(cfg: ExperimentConfig, name: str = "default") -> ExperimentConfig:
     return cfg
 
 
-def _make_checker(cfg: ExperimentConfig, out, keep: dict, cancel):
-    """Phases a-c, or a reused checker: ``(trained checker, its report)``."""
-    if cfg.checker is not None:
-        return phases.reuse_checker(cfg)
+def _make_checker(cfg: ExperimentConfig, out, keep: dict, cancel, reused=None):
+    """Phases a-c, or the reused checker ``reused``: ``(trained checker, its report)``."""
+    if reused is not None:
+        return phases.reuse_checker(cfg, reused)
     if cfg.checker_kind == "memory":  # a-c: streams, the recurrent checker, its report
         return memory_phase.train_memory_checker(cfg, out)
     behaviour = keep["behaviour"] = phases.behaviour_agent(cfg, out, cancel)  # a
@@ -310,14 +311,17 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     ``keep``, a dict, receives what the phases returned (``behaviour``, ``data``,
     ``trained``, ``report``, ``runs``), for a caller that goes on working with them.
     """
+    # a --checker that does not fit is refused before --out records this configuration
+    reused = phases.load_reused(cfg) if cfg.checker is not None else None
     out = phases.prepare_out(cfg)  # fails here, before any training, if not writable
     start = time.perf_counter()
     keep = {} if keep is None else keep
     compiler = phases.Compiler(cfg)  # the modes' programs compile in a thread meanwhile
     workers = phases.Workers(cfg.workers)  # the phases that train, cfg.workers at once
+    interrupted = False
     try:
         compiler.submit()  # the modes without a checker, while the checker is made
-        made = workers.submit(_make_checker, cfg, out, keep, workers.cancel)  # a-c
+        made = workers.submit(_make_checker, cfg, out, keep, workers.cancel, reused)  # a-c
         own = None  # c': the shield's own checker, beside c
         if cfg.shield_guided is not None and "shield" in cfg.modes:
             own = workers.submit(memory_phase.train_memory_checker, cfg, out, guided=
@@ -335,8 +339,11 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
         compiler.submit(checkers)
         jobs.update({m: train(m, checkers[m]) for m in compiler.order if m not in jobs})
         runs = workers.results({m: jobs[m] for m in cfg.modes})
+    except KeyboardInterrupt:
+        interrupted = True  # a chunk or a compile in a thread may take a minute: no wait
+        raise
     finally:
-        workers.close()
+        workers.close(wait=not interrupted)  # after an error: they stop at their next chunk
         compiler.close()
     keep.update(trained=trained, report=checker_report, runs=runs)
     if cfg.sweep_values:  # one results directory per swept value, and a summary
@@ -442,7 +449,23 @@ def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
     except (ValueError, FileNotFoundError, rundir.LockHeld) as e:
         print(f"error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
+    except OSError as e:  # a failed write (a full disk, a checkpoint orbax could not save)
+        print(f"error: {e}\nfinished phases are kept in {cfg.out}; resume with\n  "
+              f"{resume_command(cfg.experiment, argv, cfg.out)}", file=sys.stderr)  # fmt: skip
+        raise SystemExit(1) from None
     except KeyboardInterrupt:
-        print(f"\ninterrupted: finished phases are kept in {cfg.out}; rerun with "
-              f"--out {cfg.out} to resume", file=sys.stderr)  # fmt: skip
+        print(f"\ninterrupted: finished phases are kept in {cfg.out}; resume with\n  "
+              f"{resume_command(cfg.experiment, argv, cfg.out)}", file=sys.stderr)  # fmt: skip
         raise SystemExit(130) from None
+
+
+def resume_command(experiment: str, argv: list[str], out: str) -> str:
+    """The command line that resumes a run of ``argv`` in ``out``: the same flags, and
+    ``--out out`` in place of any ``--out`` given."""
+    kept, skip = [], False
+    for a in argv:
+        if skip or a == "--out" or a.startswith("--out="):
+            skip = a == "--out"
+            continue
+        kept.append(a)
+    return shlex.join(["python", "-m", f"experiments.{experiment}", *kept, "--out", out])

@@ -622,6 +622,14 @@ def _code_note(entries: list) -> str:
     return note
 
 
+def _smoke_note(results: Mapping) -> str:
+    """A warning atop a ``--quick`` run's report: its sizes test the outputs, not the agents."""
+    if not (results.get("config") or {}).get("quick"):
+        return ""
+    return ("**A `--quick` smoke test: these numbers mean nothing** (a few thousand steps, "
+            "two seeds); run without `--quick` for results.\n\n")  # fmt: skip
+
+
 def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
     """Validate ``results`` then atomically write ``results.json`` and ``results.md``.
 
@@ -634,6 +642,7 @@ def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
     out = Path(out_dir)
     md = (
         f"# Results: {results['experiment']}\n\n"
+        + _smoke_note(results)
         + results_table(results)
         + f"\nTotal wall time: {_format_duration(float(results['timing']['total_s']))}"
         + _baseline_note(results["timing"])
@@ -648,7 +657,9 @@ def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
 
 def summarise(results: Mapping) -> str:
     """Short multi-line console summary: one line per mode, the checker AUROC and wall time."""
-    lines = [f"{results.get('experiment', '?')}:"]
+    quick = (results.get("config") or {}).get("quick")
+    lines = [f"{results.get('experiment', '?')}" + (" (--quick: these numbers mean nothing)"
+                                                    if quick else "") + ":"]  # fmt: skip
     methods = results["methods"]
     width = max(len(m) for m in methods)
     for mode in _ordered_modes(methods):

@@ -269,7 +269,7 @@ def test_reused_checker_with_a_stale_report_is_refused(run_copy, tmp_path, capsy
     ckpt = out / "checker"
     reuse = pipeline.parse_args([*ARGV, "--out", str(tmp_path / "reuse"), "--checker",
                                  str(ckpt)], two_rooms.SCENARIO)  # fmt: skip
-    _, report = phases.reuse_checker(reuse)  # its report matches: accepted
+    _, report = phases.reuse_checker(reuse, phases.load_reused(reuse))  # it matches: accepted
     assert report["test"] == state["report"]["test"]
     # Retrained (here: other parameters) without its report: the report no longer matches.
     import jax

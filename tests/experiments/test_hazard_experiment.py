@@ -107,7 +107,7 @@ def test_a_checker_of_the_other_kind_is_refused_by_name(tmp_path):
     cfg = dataclasses.replace(cfg, checker=str(tmp_path / "memory"), out=str(tmp_path / "o"))
     with pytest.raises(ValueError, match="a memory checker, and two_rooms trains its agents "
                                          "with a window checker"):  # fmt: skip
-        phases.reuse_checker(cfg)
+        phases.load_reused(cfg)
 
 
 def test_a_memory_checker_of_the_other_label_is_refused_by_name(tmp_path):
@@ -115,8 +115,9 @@ def test_a_memory_checker_of_the_other_label_is_refused_by_name(tmp_path):
     _saved_memory_checker(tmp_path / "next")
     cfg = preset(hazard_rooms.SCENARIO, "quick")
     cfg = dataclasses.replace(cfg, checker=str(tmp_path / "next"), out=str(tmp_path / "o"))
-    with pytest.raises(ValueError, match="label 'next' != --memory-label 'into'"):
-        phases.reuse_checker(cfg)
+    with pytest.raises(ValueError, match="trained with label 'next', and this run asks for "
+                                         "--memory-label 'into'"):  # fmt: skip
+        phases.load_reused(cfg)
 
 
 def _fake_streams(env, key, n, t, guided=0.0):
