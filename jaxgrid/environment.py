@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -195,7 +196,49 @@ def check_key(key) -> None:
         )
 
 
+# Declared setting types checked for every level; annotations are strings (postponed).
+_CHECKED_TYPES = {"bool": bool, "int": int, "float": float}
+
+
+def _expected(value, kind: type) -> str | None:
+    """What a setting declared ``kind`` must be, when ``value`` is not that; else None.
+
+    Only the mix-ups later checks would miss: a bool setting takes only True or False (the
+    string "False" is truthy); an int setting refuses a bool (True == 1) and a float (5.5, or
+    5.0, which ``range`` and array shapes refuse only when the level is drawn); a float setting,
+    a pytree leaf that may be an array, refuses a bool and a string.
+    """
+    if kind is bool:
+        return None if isinstance(value, bool) else "a bool (True or False)"
+    if kind is int:
+        return None if isinstance(value, int) and not isinstance(value, bool) else "an int"
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        return "a number or an array of numbers"
+    return None
+
+
+def check_setting_types(env: Environment) -> None:
+    """Raise ``ValueError`` naming the setting and the value when a setting declared ``bool``,
+    ``int`` or ``float`` holds a value of another type (see :func:`_expected`).
+
+    Settings of other declared types (tuples, strings, optional values) are checked by their
+    level. It runs at construction, so it covers ``make`` overrides and ``replace`` too.
+    """
+    for field in dataclasses.fields(env):
+        kind = _CHECKED_TYPES.get(field.type) if isinstance(field.type, str) else field.type
+        if kind not in (bool, int, float):
+            continue
+        value = getattr(env, field.name)
+        want = _expected(value, kind)
+        if want is not None:
+            raise ValueError(
+                f"{type(env).__name__}.{field.name} must be {want}, got {value!r} "
+                f"({type(value).__name__})"
+            )
+
+
 def _check_config(env: Environment) -> None:
+    check_setting_types(env)
     name = type(env).__name__
     for field in ("width", "height", "max_steps"):
         value = getattr(env, field)

@@ -17,17 +17,22 @@ zone (every budget, trigger and order ignored: a sufficient condition for a run 
 violation) and every trigger cell the constraint names exists; after
 :data:`TRIES_PER_SENTENCE` failed layouts another sentence of the same type is drawn (types
 stay uniform; within a type, sentences that few layouts satisfy become rarer), and after
-:data:`MAX_TRIES` the last layout is kept. The agent never starts inside a zone. So that
+:data:`MAX_TRIES` the last layout is kept, and ``info["satisfiable"]`` is False for that whole
+episode, so evaluation can count such episodes. The agent starts outside every zone whenever
+the layout is satisfiable. So that
 budgets and sequences bind, most strips (:data:`NAMED_SHARE`) are of the ground hazard a
 budget or sequential clause names first, and the trigger of an "after" clause, when it is to
 enter lava or a floor, lies on both doorsteps out of the agent's room: a route that skirts its
 trigger never arms the clause. The monitor (:mod:`jaxgrid.monitor`) lives in the
 state; ``info`` reports ``violation``, ``cost``, ``constraint_type`` (index into
-:data:`jaxgrid.hazard_language.CONSTRAINT_TYPES`) and ``template_id`` (the first clause's).
+:data:`jaxgrid.hazard_language.CONSTRAINT_TYPES`), ``template_id`` (the first clause's) and
+``satisfiable``.
 
 ``sentences`` replaces the drawn constraints with a fixed list (each episode draws one of
 them uniformly); every sentence is parsed and checked against what the scenario contains
-when the environment is built.
+when the environment is built, and refused when fewer than :data:`MIN_SATISFIABLE_SHARE` of
+:data:`CHECK_LAYOUTS` sampled layouts can be crossed without entering its zones
+(:func:`satisfiable_share`): the retry loop would often end on an impossible layout.
 """
 
 from __future__ import annotations
@@ -67,6 +72,12 @@ from jaxgrid.types import State, TimeStep
 MAX_TRIES = 128
 #: Layout draws per sentence: a sentence no layout satisfies is replaced by another of its type.
 TRIES_PER_SENTENCE = 16
+#: Layouts sampled (from fixed keys) to measure how often a given sentence can be met.
+CHECK_LAYOUTS = 256
+#: Least share of layouts a given sentence must leave a zone-free route in. At 5% the retry
+#: loop ends on an impossible layout in about one episode of 700 (0.95 ** MAX_TRIES); every
+#: row of the default tables measures 15% or more on the 13x13 grid.
+MIN_SATISFIABLE_SHARE = 0.05
 #: Chance that a strip is of the ground hazard that a budget or sequential clause names first.
 NAMED_SHARE = 0.75
 #: Colours of the floor tiles: water, grass and yellow floor.
@@ -179,6 +190,7 @@ class HazardExtras:
     constraint: EpisodeConstraint
     monitor: M.Monitor
     goal_pos: jax.Array  # int32 (2,)
+    satisfiable: jax.Array  # bool: the goal is reachable without entering any zone
 
 
 def _on_the_ground(kind: jax.Array) -> jax.Array:
@@ -231,13 +243,18 @@ class HazardRooms(Environment):
             if (
                 not isinstance(values, tuple)
                 or not values
-                or any(not isinstance(v, int) or not 1 <= v <= hi for v in values)
+                or any(
+                    isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= hi
+                    for v in values
+                )
             ):
                 raise ValueError(f"{name}.{field} must be a non-empty tuple of ints 1..{hi}")
         if self.sentences is not None:
             if isinstance(self.sentences, str) or not self.sentences:
                 raise ValueError(f"{name}.sentences must be a non-empty tuple of sentences")
             self.constraint_table()  # parses and checks every sentence now
+            for sentence in dict.fromkeys(self.sentences):
+                _check_satisfiable(self, sentence)
 
     def min_size(self):
         # Every room interior at least 3x3: room for a strip and a cell beside each door.
@@ -379,40 +396,49 @@ class HazardRooms(Environment):
         )
         return ec, clause_spec
 
+    def _attempt(self, table: dict, ctype: jax.Array, key_c: jax.Array, key_l: jax.Array, i):
+        """Draw ``i`` of an episode: ``(constraint, grid, agent, direction, goal, monitor, ok)``,
+        the constraint as :meth:`_draw_constraint` says and the layout as :meth:`_lay_out`."""
+        # A fresh sentence of the same type every TRIES_PER_SENTENCE layouts.
+        ec, spec = self._draw_constraint(
+            jax.random.fold_in(key_c, i // TRIES_PER_SENTENCE), table, ctype
+        )
+        return (ec, *self._lay_out(spec, jax.random.fold_in(key_l, i)))
+
+    def _lay_out(self, spec: M.ClauseSpec, key: jax.Array):
+        """``(grid, agent, direction, goal, monitor, ok)``: one layout drawn for ``spec``.
+
+        ``ok``: the goal is reachable without entering any clause's zone and every trigger cell
+        the constraint names exists. Layouts from independent keys are independent, so a batch
+        of them measures how often a constraint can be met (:func:`satisfiable_share`).
+        """
+        first = jax.tree.map(lambda a: a[0], spec)
+        ground = _on_the_ground(first.target_kind)
+        # Budgets and sequences bind only when their hazard lies across the route; avoid
+        # and proximity clauses bind often enough with the plain layout, and are harder to
+        # satisfy with more of their hazard.
+        boost = ground & ((first.budget > 0) | (first.gate != M.ALWAYS))
+        named = jnp.stack([jnp.where(boost, first.target_kind, -1), first.target_colour])
+        # An "after" clause binds only when the route meets its trigger first: a ground
+        # trigger lies on the doorsteps out of the agent's room, so every route meets it.
+        on_route = (
+            (first.gate == M.AFTER) & ~first.trigger_pickup & _on_the_ground(first.trigger_kind)
+        )
+        doorstep = jnp.stack([jnp.where(on_route, first.trigger_kind, -1), first.trigger_colour])
+        u = jax.random.uniform(key, (self.NUM_UNIFORMS,))
+        grid, agent, direction, goal = self.layout(u, named, doorstep)
+        monitor = M.start(spec, grid)
+        ok = solvable(grid, agent, jnp.any(monitor.zone, 0))
+        # A trigger to enter must exist ("after you pass the purple door" with no purple
+        # door would never arm), as must the key for a pickup trigger (it always does).
+        enters = spec.active & (spec.trigger_kind >= 0) & ~spec.trigger_pickup
+        ok = ok & jnp.all(~enters | jnp.any(monitor.trigger_cells, axis=(1, 2)))
+        return grid, agent, direction, goal, monitor, ok
+
     def generate(self, key: jax.Array) -> State:
         table = jax.tree.map(jnp.asarray, self.constraint_table())
         key_t, key_c, key_l = jax.random.split(key, 3)
         ctype = G.randint(jax.random.uniform(key_t), 0, len(HL.CONSTRAINT_TYPES))
-
-        def draw(i):
-            # A fresh sentence of the same type every TRIES_PER_SENTENCE layouts.
-            ec, spec = self._draw_constraint(
-                jax.random.fold_in(key_c, i // TRIES_PER_SENTENCE), table, ctype
-            )
-            first = jax.tree.map(lambda a: a[0], spec)
-            ground = _on_the_ground(first.target_kind)
-            # Budgets and sequences bind only when their hazard lies across the route; avoid
-            # and proximity clauses bind often enough with the plain layout, and are harder to
-            # satisfy with more of their hazard.
-            boost = ground & ((first.budget > 0) | (first.gate != M.ALWAYS))
-            named = jnp.stack([jnp.where(boost, first.target_kind, -1), first.target_colour])
-            # An "after" clause binds only when the route meets its trigger first: a ground
-            # trigger lies on the doorsteps out of the agent's room, so every route meets it.
-            on_route = (
-                (first.gate == M.AFTER) & ~first.trigger_pickup & _on_the_ground(first.trigger_kind)
-            )
-            doorstep = jnp.stack(
-                [jnp.where(on_route, first.trigger_kind, -1), first.trigger_colour]
-            )
-            u = jax.random.uniform(jax.random.fold_in(key_l, i), (self.NUM_UNIFORMS,))
-            grid, agent, direction, goal = self.layout(u, named, doorstep)
-            monitor = M.start(spec, grid)
-            ok = solvable(grid, agent, jnp.any(monitor.zone, 0))
-            # A trigger to enter must exist ("after you pass the purple door" with no purple
-            # door would never arm), as must the key for a pickup trigger (it always does).
-            enters = spec.active & (spec.trigger_kind >= 0) & ~spec.trigger_pickup
-            ok = ok & jnp.all(~enters | jnp.any(monitor.trigger_cells, axis=(1, 2)))
-            return ec, grid, agent, direction, goal, monitor, ok
 
         def cond(carry):
             i, *_, ok = carry
@@ -420,12 +446,13 @@ class HazardRooms(Environment):
 
         def body(carry):
             i = carry[0]
-            return (i + 1, *draw(i))
+            return (i + 1, *self._attempt(table, ctype, key_c, key_l, i))
 
-        _, ec, grid, agent, direction, goal, monitor, _ = jax.lax.while_loop(
-            cond, body, (jnp.int32(1), *draw(0))
+        draw0 = self._attempt(table, ctype, key_c, key_l, 0)
+        _, ec, grid, agent, direction, goal, monitor, ok = jax.lax.while_loop(
+            cond, body, (jnp.int32(1), *draw0)
         )
-        extras = HazardExtras(constraint=ec, monitor=monitor, goal_pos=goal)
+        extras = HazardExtras(constraint=ec, monitor=monitor, goal_pos=goal, satisfiable=ok)
         return self.init_state(grid, agent, direction, key, extras)
 
     # --- observation, step ----------------------------------------------------------------
@@ -445,6 +472,7 @@ class HazardRooms(Environment):
             "cost": cost,
             "constraint_type": c.type_id,
             "template_id": c.template_id,
+            "satisfiable": state.extras.satisfiable,
         }
 
     def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
@@ -458,6 +486,54 @@ class HazardRooms(Environment):
         new = new.replace(extras=new.extras.replace(monitor=monitor))
         info = self._info(new, violation, cost)
         return new, self.make_timestep(new, reward, terminated, truncated, info)
+
+
+def _layout_env(env: HazardRooms) -> HazardRooms:
+    """``env`` with the settings that never shape a layout set to fixed values, so that envs
+    differing only in them share one compiled check: steps and views (``max_steps``,
+    ``view_size``, ``see_through_walls``) and the constraint table (the spec is an input)."""
+    return env.replace(sentences=None, max_steps=1, view_size=7, see_through_walls=False)
+
+
+@functools.cache
+def _share_fn(env: HazardRooms):
+    # lax.map, not vmap: the same answers, and it compiles in about two thirds of the time.
+    return jax.jit(lambda spec, keys: jax.lax.map(lambda k: env._lay_out(spec, k)[-1], keys))
+
+
+@functools.cache
+def _share(env: HazardRooms, sentence: str, n: int) -> float:
+    spec = M.encode(check_sentence(sentence))
+    keys = jax.random.split(jax.random.key(0), n)
+    return float(np.mean(_share_fn(env)(spec, keys)))
+
+
+def satisfiable_share(env: HazardRooms, sentence: str, n: int = CHECK_LAYOUTS) -> float:
+    """Share of ``n`` layouts of ``env`` drawn for ``sentence`` in which the goal is reachable
+    without entering any of its zones (and its enter-triggers exist): each such layout has a
+    run with no violation.
+
+    Layouts come from fixed keys, so the share is reproducible; it is cached per layout
+    settings and sentence. The first call for a grid size compiles the layout (seconds on a
+    CPU); later ones take milliseconds. Raises as :func:`check_sentence` does.
+    """
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"n must be a positive int, got {n!r}")
+    return _share(_layout_env(env), sentence, n)
+
+
+def _check_satisfiable(env: HazardRooms, sentence: str) -> None:
+    """Raise ``ValueError`` naming ``sentence`` when too few sampled layouts can be crossed
+    without entering its zones (see :data:`MIN_SATISFIABLE_SHARE`)."""
+    share = satisfiable_share(env, sentence)
+    if share < MIN_SATISFIABLE_SHARE:
+        raise ValueError(
+            f"{type(env).__name__}.sentences: {sentence!r} can rarely be met: only {share:.1%} "
+            f"of {CHECK_LAYOUTS} sampled {env.width}x{env.height} layouts have a route to the "
+            f"goal outside its forbidden zones (at least {MIN_SATISFIABLE_SHARE:.0%} needed), "
+            f"so many episodes would have no run without a violation; choose a weaker "
+            "constraint (a smaller distance, one clause) or a larger grid"
+        )
 
 
 def solvable(grid: jax.Array, agent: jax.Array, forbidden: jax.Array) -> jax.Array:

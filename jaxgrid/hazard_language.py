@@ -12,6 +12,12 @@ with lava. This grammar says more, in the spirit of HazardWorld (Yang et al. 202
 * **proximity**: "never stand next to lava", "stay two cells away from the yellow floor";
 * the **conjunction** of any two clauses with "and" (a trigger scopes its own clause only).
 
+Numbers are read whole, with their sign ("-1", "minus two"), decimal point ("1.5") and digit
+groups ("1,000"), and any number a clause cannot take is refused by name, with the range it
+allows: budgets count 1 to :data:`MAX_BUDGET` times, distances are 1 to :data:`MAX_DISTANCE`
+cells (the monitor's zones reach at most ``MAX_DISTANCE - 1`` cells out), written as the words
+"one" to "ten" or as plain digits.
+
 Every sentence of the paper's grammar is also a sentence here, with the same meaning (avoid
 clauses). The vocabulary extends :data:`jaxgrid.language.VOCAB` append-only, so the paper's
 words keep their token ids and a paper sentence tokenizes to the same ids (with more padding:
@@ -47,6 +53,7 @@ its targets and every target appearing in training.
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
@@ -70,6 +77,7 @@ __all__ = [
     "Trigger",
     "clause_rows",
     "detokenize",
+    "numeral_value",
     "parse",
     "tokenize",
     "vocab_size",
@@ -98,7 +106,16 @@ _WORD_TO_ID = {w: i for i, w in enumerate(VOCAB)}
 PAD = language.PAD
 #: Token ids per sentence (right-padded); longer sentences are rejected.
 MAX_LEN: int = 32
-_OUT_OF_RANGE_NUMBERS = ("zero", "eleven", "twelve", "twenty", "hundred", "thousand")
+#: Number words outside the grammar's numbers, read so that they are refused by value.
+_OTHER_NUMBER_WORDS = {
+    "zero": 0, "eleven": 11, "twelve": 12, "thirteen": 13, "fourteen": 14, "fifteen": 15,
+    "sixteen": 16, "seventeen": 17, "eighteen": 18, "nineteen": 19, "twenty": 20, "thirty": 30,
+    "forty": 40, "fifty": 50, "sixty": 60, "seventy": 70, "eighty": 80, "ninety": 90,
+    "hundred": 100, "thousand": 1000, "million": 10**6, "billion": 10**9,
+}  # fmt: skip
+#: Words that make the number after them negative.
+_MINUS_WORDS = ("minus", "negative")
+_DIGITS = re.compile(r"[+-]?\d+(?:[.,]\d+)*")
 
 
 def vocab_size() -> int:
@@ -193,12 +210,18 @@ Parser = Callable[[Sequence[str], int, "_Failure"], list]
 class _Failure:
     def __init__(self):
         self.pos, self.expected = -1, []
+        self.bad_number: tuple[int, str, str] | None = None  # (position, numeral, why)
 
     def note(self, pos: int, what: str) -> None:
         if pos > self.pos:
             self.pos, self.expected = pos, [what]
         elif pos == self.pos and what not in self.expected:
             self.expected.append(what)
+
+    def note_number(self, pos: int, numeral: str, why: str) -> None:
+        """A numeral where a number goes, but not one the slot allows: the first one wins."""
+        if self.bad_number is None or pos < self.bad_number[0]:
+            self.bad_number = (pos, numeral, why)
 
 
 def _lit(phrase: str, value: Any = None) -> Parser:
@@ -250,13 +273,75 @@ def _seq(*parsers: Parser, build: Callable[..., Any]) -> Parser:
 
 
 _COLOUR = _word({c: c for c in COLOURS}, f"a colour ({', '.join(COLOURS)})")
+#: The numerals the grammar accepts, with their values: the words and the plain digits.
 _NUMBER = {w: k for k, w in enumerate(_NUMBER_WORDS, start=1)} | {
     str(k): k for k in range(1, MAX_BUDGET + 1)
 }
-_COUNT = _word(_NUMBER, f"a count (1 to {MAX_BUDGET}, as a word or a digit)")
-_DIST = _word(
-    {w: k for w, k in _NUMBER.items() if k <= MAX_DISTANCE},
+
+
+def numeral_value(word: str) -> int | float | None:
+    """The value of a one-word numeral, or None when ``word`` is none.
+
+    Numerals are the number words (the grammar's "one" to "ten", and "zero", "eleven" to
+    "ninety", "hundred" to "billion") and digits with an optional sign, decimal point or digit
+    groups ("3", "-1", "+2", "1.5", "1,000": :func:`normalize` keeps them whole). The value
+    is what the numeral says, so that a number the grammar does not accept can be refused by
+    what it is (negative, fractional or out of range) instead of being misread.
+    """
+    if word in _NUMBER:
+        return _NUMBER[word]
+    if word in _OTHER_NUMBER_WORDS:
+        return _OTHER_NUMBER_WORDS[word]
+    if _DIGITS.fullmatch(word):
+        plain = word.replace(",", "")
+        return float(plain) if "." in plain else int(plain)
+    return None
+
+
+def _why_not(value: int | float, high: int) -> str:
+    """Why a numeral of ``value`` is not one of the grammar's numbers 1..``high``."""
+    if value < 0:
+        return "is negative"
+    if value != int(value):
+        return "is not a whole number"
+    if not 1 <= value <= high:
+        return "is out of range"
+    return "is not written as the grammar writes numbers (no sign, leading zero or comma)"
+
+
+def _number(high: int, what: str, rule: str) -> Parser:
+    """A number 1..``high``: a word ("three") or plain digits ("3"); ``what`` names the slot
+    in grammar errors, ``rule`` states its range in number errors.
+
+    Any other numeral in its place ("-1", "minus two", "1.5", "+2", "eleven") fails with a
+    :meth:`_Failure.note_number`, which :func:`parse` reports before any grammar error: the
+    sentence says a number the monitor cannot represent, and no other reading is meant.
+    """
+
+    def parse(ws, i, fail):
+        j = i + 1 if i < len(ws) and ws[i] in _MINUS_WORDS else i
+        value = numeral_value(ws[j]) if j < len(ws) else None
+        if value is None:
+            fail.note(i, what)
+            return []
+        if j == i and ws[i] in _NUMBER and _NUMBER[ws[i]] <= high:
+            return [(_NUMBER[ws[i]], i + 1)]
+        value = -value if j > i else value
+        fail.note_number(i, " ".join(ws[i : j + 1]), f"{_why_not(value, high)}: {rule}")
+        return []
+
+    return parse
+
+
+_COUNT = _number(
+    MAX_BUDGET,
+    f"a count (1 to {MAX_BUDGET}, as a word or a digit)",
+    f"a budget counts 1 to {MAX_BUDGET} times, written one to ten or 1 to {MAX_BUDGET}",
+)
+_DIST = _number(
+    MAX_DISTANCE,
     f"a distance (1 to {MAX_DISTANCE} cells)",
+    f"a distance is 1 to {MAX_DISTANCE} cells, written one to three or 1 to {MAX_DISTANCE}",
 )
 
 _DOOR = _seq(_lit("the"), _COLOUR, _lit("door"), build=lambda c: Target("door", c))
@@ -357,14 +442,11 @@ normalize = language.normalize
 
 
 def _check_words(words: list[str], sentence: str) -> None:
+    """Raise for a word outside the vocabulary; numerals pass, for the grammar to judge where
+    they stand (a count and a distance allow different numbers)."""
     for pos, w in enumerate(words, start=1):
-        if w in _WORD_TO_ID and w != PAD:
+        if (w in _WORD_TO_ID and w != PAD) or w in _MINUS_WORDS or numeral_value(w) is not None:
             continue
-        if w.isdigit() or w in _OUT_OF_RANGE_NUMBERS:
-            raise ValueError(
-                f"number {w!r} at position {pos} in {sentence!r} is out of range: a budget "
-                f"counts 1 to {MAX_BUDGET} times, a distance 1 to {MAX_DISTANCE} cells"
-            )
         raise ValueError(
             f"unknown word {w!r} at position {pos} in {sentence!r}; valid vocabulary: "
             + ", ".join(VOCAB[1:])
@@ -375,8 +457,9 @@ def parse(sentence: str) -> HazardConstraint:
     """Compile a sentence into its :class:`HazardConstraint`.
 
     Raises ``TypeError`` for a non-string and ``ValueError`` naming the problem: too long,
-    non-ASCII, empty, an unknown word (listing the vocabulary), a number out of range, or the
-    first word where the grammar fails, with its 1-based position and what was expected.
+    non-ASCII, empty, an unknown word (listing the vocabulary), a number its clause cannot
+    take (negative, fractional, out of range or signed, with the range allowed), or the first
+    word where the grammar fails, with its 1-based position and what was expected.
     """
     words = normalize(sentence)
     if not words:
@@ -393,7 +476,11 @@ def parse(sentence: str) -> HazardConstraint:
     if done:
         # Distinct parses always agree in meaning (tests check it); keep the first.
         return HazardConstraint(clauses=done[0], sentence=" ".join(words))
-    expected = " or ".join(fail.expected + (["'and'"] if _ends_clause(words, fail.pos) else []))
+    if fail.bad_number is not None:
+        pos, numeral, why = fail.bad_number
+        raise ValueError(f"number {numeral!r} at position {pos + 1} in {sentence!r} {why}")
+    more = ["'and'"] if "'and'" not in fail.expected and _ends_clause(words, fail.pos) else []
+    expected = " or ".join(fail.expected + more)
     if fail.pos >= len(words):
         raise ValueError(
             f"incomplete constraint {sentence!r}: it ends after {words[-1]!r} at position "

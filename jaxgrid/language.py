@@ -61,7 +61,10 @@ Normalisation
 -------------
 Case is ignored, every ASCII character other than a letter or digit (punctuation, tabs,
 newlines) separates words, and runs of separators collapse, so "Do NOT use the red door!"
-and "do not use the red door" are the same sentence. Non-ASCII characters are rejected.
+and "do not use the red door" are the same sentence. A numeral keeps its sign, decimal point
+and digit groups ("-1", "+2", "1.5" and "1,000" are one word each), so that a number is never
+read as another; this grammar has no numbers, so any numeral is an unknown word. Non-ASCII
+characters are rejected.
 
 Held-out split
 --------------
@@ -78,6 +81,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -135,6 +139,11 @@ VOCAB: tuple[str, ...] = (
 _WORD_TO_ID = {w: i for i, w in enumerate(VOCAB)}
 
 _SLOT = "{colour}"  # the colour slot inside a clause pattern
+# A word: a numeral with its sign (spaces after the sign allowed: "- 2" is still negative),
+# decimal point and digit groups, when no letter or digit follows it ("1st" is an ordinary
+# word); else a run of letters and digits.
+_WORD = re.compile(r"(?:[+-]\s*)?\d+(?:[.,]\d+)*(?![a-z0-9])|[a-z0-9]+")
+_SPACE = re.compile(r"\s+")
 
 #: Door clause patterns (index = door clause id) and their paper type.
 DOOR_CLAUSES: tuple[tuple[str, int], ...] = (
@@ -285,7 +294,9 @@ def _expected(node: _Node) -> list[str]:
 def normalize(sentence: str) -> list[str]:
     """Split a sentence into lower-case words, ignoring punctuation and extra whitespace.
 
-    Every ASCII character that is not a letter or a digit acts as a separator. Raises
+    Every ASCII character that is not a letter or a digit acts as a separator, except the
+    sign, decimal point and digit-group commas of a numeral, which stay in its word ("-1",
+    "+2", "1.5", "1,000"; "- 2" is "-2"). Raises
     ``TypeError`` for a non-string and ``ValueError`` for input over :data:`MAX_CHARS`
     characters or containing a non-ASCII character. No vocabulary check is done here.
     """
@@ -299,8 +310,7 @@ def normalize(sentence: str) -> list[str]:
                 f"non-ASCII character {ch!r} (U+{ord(ch):04X}) at index {i} of {sentence!r}; "
                 "constraints are plain ASCII English"
             )
-    cleaned = "".join(ch if ch.isalnum() else " " for ch in sentence.lower())
-    return cleaned.split()
+    return [_SPACE.sub("", w) for w in _WORD.findall(sentence.lower())]
 
 
 def parse(sentence: str) -> Constraint:

@@ -23,7 +23,14 @@ import numpy as np
 from flax import struct
 
 from jaxgrid.constants import BALL, BOX, COLOR_TO_IDX, DOOR, EMPTY, FLOOR, KEY, LAVA
-from jaxgrid.hazard_language import Clause, HazardConstraint, Target, Trigger
+from jaxgrid.hazard_language import (
+    MAX_BUDGET,
+    MAX_DISTANCE,
+    Clause,
+    HazardConstraint,
+    Target,
+    Trigger,
+)
 
 __all__ = [
     "NUM_CLAUSES", "ClauseSpec", "Monitor", "empty_slot", "encode", "start", "update", "zone_masks",
@@ -34,7 +41,8 @@ NUM_CLAUSES = 2
 #: Gates: when a clause's events count.
 ALWAYS, AFTER, BEFORE = 0, 1, 2
 _KINDS = {"door": DOOR, "lava": LAVA, "floor": FLOOR, "key": KEY, "ball": BALL, "box": BOX}
-_MAX_RADIUS = 2  # proximity distances are at most 3 cells, so zones reach 2 cells out
+# Zones reach distance - 1 cells out; zone_masks unrolls that many dilations.
+_MAX_RADIUS = MAX_DISTANCE - 1
 
 
 @struct.dataclass
@@ -73,6 +81,17 @@ def _colour(colour: str | None) -> int:
     return -1 if colour is None else COLOR_TO_IDX[colour]
 
 
+def _check_clause(c: Clause) -> None:
+    """Raise ``ValueError`` for a count or distance the monitor would misrepresent: a zone
+    wider than :func:`zone_masks` draws, or a negative budget (every event a violation)."""
+    for name, value, high in (
+        ("count", c.count, MAX_BUDGET),
+        ("distance", c.distance, MAX_DISTANCE),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= high:
+            raise ValueError(f"clause {name} must be an int in 0..{high}, got {value!r}")
+
+
 def _encode_clause(c: Clause | None) -> tuple:
     if c is None:
         return (False, -1, -1, 0, 0, ALWAYS, -1, -1, False)
@@ -98,7 +117,11 @@ def _encode_clause(c: Clause | None) -> tuple:
 
 
 def encode(constraint: HazardConstraint | Clause | tuple) -> ClauseSpec:
-    """Numpy :class:`ClauseSpec` of a constraint (or one clause, or a tuple of clauses)."""
+    """Numpy :class:`ClauseSpec` of a constraint (or one clause, or a tuple of clauses).
+
+    Raises ``ValueError`` for a clause count outside 0..MAX_BUDGET or a distance outside
+    0..MAX_DISTANCE (a clause built by hand; parsed ones are always in range).
+    """
     if isinstance(constraint, HazardConstraint):
         clauses = constraint.clauses
     elif isinstance(constraint, Clause):
@@ -107,6 +130,8 @@ def encode(constraint: HazardConstraint | Clause | tuple) -> ClauseSpec:
         clauses = tuple(constraint)
     if not 1 <= len(clauses) <= NUM_CLAUSES:
         raise ValueError(f"a constraint has 1 to {NUM_CLAUSES} clauses, got {len(clauses)}")
+    for c in clauses:
+        _check_clause(c)
     rows = [_encode_clause(c) for c in clauses] + [_encode_clause(None)] * (
         NUM_CLAUSES - len(clauses)
     )

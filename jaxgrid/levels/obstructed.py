@@ -88,9 +88,6 @@ class _ObstructedMaze(RoomLevel):
                 f"{name}.room_size must be {ROOM_SIZE} (MiniGrid's ObstructedMazeEnv fixes it), "
                 f"got {self.room_size!r}"
             )
-        for field in ("key_in_box", "blocked"):
-            if not isinstance(getattr(self, field), bool):
-                raise ValueError(f"{name}.{field} must be a bool, got {getattr(self, field)!r}")
 
     def succeeded(self, state: State, action: jax.Array) -> jax.Array:
         return self._picked_up_target(state, action)
@@ -210,10 +207,6 @@ class ObstructedMazeFull(_ObstructedMaze):
         ):
             raise ValueError(
                 f"{name}.agent_room must be a (column, row) tuple of ints in 0..2, got {room!r}"
-            )
-        if not isinstance(self.keys_after_doors, bool):
-            raise ValueError(
-                f"{name}.keys_after_doors must be a bool, got {self.keys_after_doors!r}"
             )
 
     def generate(self, key: jax.Array) -> State:
