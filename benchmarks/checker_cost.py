@@ -114,4 +114,4 @@ def main(argv=None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    cli.run_main(main, "python -m benchmarks.checker_cost")

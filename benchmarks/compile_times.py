@@ -23,8 +23,10 @@ import sys
 import jax
 import jax.numpy as jnp
 
+from benchmarks.cli import integer, real
 from benchmarks.layout_fidelity import native_ids
 from benchmarks.timing import compile_ahead
+from checker.cli import run_main
 from jaxgrid.io import write_json
 from jaxgrid.registry import make
 from jaxgrid.wrappers import AutoReset
@@ -44,11 +46,12 @@ def compile_seconds(env_id: str, num_envs: int) -> dict:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.compile_times",
+                                     description=__doc__.split("\n\n")[0])  # fmt: skip
     parser.add_argument("--ids", nargs="*", default=None, help="ids to time (default: all)")
-    parser.add_argument("--num-envs", type=int, default=64, help="envs per batch")
-    parser.add_argument("--budget", type=float, default=5.0, help="seconds allowed per id")
-    parser.add_argument("--repeats", type=int, default=1, help="compiles per program (fastest)")
+    parser.add_argument("--num-envs", type=integer, default=64, help="envs per batch")
+    parser.add_argument("--budget", type=real, default=5.0, help="seconds allowed per id")
+    parser.add_argument("--repeats", type=integer, default=1, help="compiles per program (fastest)")
     parser.add_argument("--json", default=None, help="write the report here")
     args = parser.parse_args(argv)
     if args.num_envs < 1:
@@ -96,4 +99,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main, "python -m benchmarks.compile_times")

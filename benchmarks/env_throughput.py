@@ -48,7 +48,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.cli import INSTALL, integer
 from benchmarks.timing import measure as measure_compiled
+from checker.cli import run_main
 from jaxgrid.io import write_json
 
 JAX_LIBS = ("jaxgrid", "navix", "xminigrid")
@@ -492,7 +494,7 @@ def run(
         reason = check_import(lib)
         if reason is not None:
             skipped[lib] = reason
-            log(f"[skip] {lib}: {reason}")
+            log(f"[skip] {lib}: {reason} (to measure it: {INSTALL})")
             continue
         for n in num_envs:
             if lib == "minigrid" and n != 1:
@@ -549,29 +551,33 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--num-envs",
-        type=int,
+        type=integer,
         nargs="+",
         default=list(DEFAULT_NUM_ENVS),
         help="batch sizes N to measure",
     )
     p.add_argument(
         "--steps",
-        type=int,
+        type=integer,
         default=None,
         help="scan length T for every N (None: T = budget / N, budgets "
         f"{DEFAULT_STEP_BUDGET} env steps)",
     )
-    p.add_argument("--repeats", type=int, default=3, help="timed calls per measurement")
+    p.add_argument("--repeats", type=integer, default=3, help="timed calls per measurement")
     p.add_argument(
-        "--libs", nargs="+", default=list(ALL_LIBS), choices=ALL_LIBS, help="libraries to measure"
+        "--libs",
+        nargs="+",
+        default=list(ALL_LIBS),
+        choices=ALL_LIBS,
+        help="libraries to measure; a peer that does not import is skipped",
     )
     p.add_argument(
         "--python-steps",
-        type=int,
+        type=integer,
         default=DEFAULT_PYTHON_STEPS,
         help="Python-loop steps per repeat for Farama minigrid",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the resets and actions")
+    p.add_argument("--seed", type=integer, default=0, help="seed of the resets and actions")
     p.add_argument("--json", metavar="PATH", default=None, help="also write the JSON here")
     return p  # fmt: skip
 
@@ -586,6 +592,15 @@ def main(argv: list[str] | None = None) -> dict:
         p.error(f"--steps must be >= 1, got {args.steps}")
     if any(n < 1 for n in args.num_envs):
         p.error(f"--num-envs must all be >= 1, got {args.num_envs}")
+    if args.seed < 0:  # MiniGrid's reset refuses it
+        p.error(f"--seed must be >= 0, got {args.seed}")
+    missing = {lib: check_import(lib) for lib in args.libs}
+    if all(missing.values()):  # nothing left to measure: say so now, not after the run
+        raise ImportError(
+            "none of --libs imports here ("
+            + "; ".join(f"{lib}: {why}" for lib, why in missing.items())
+            + f"); install the benchmarks' peers with: {INSTALL}"
+        )
 
     report = run(
         args.libs,
@@ -605,4 +620,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main, "python -m benchmarks.env_throughput")

@@ -25,6 +25,8 @@ import argparse
 import sys
 
 from benchmarks import env_throughput as ET
+from benchmarks.cli import integer, require
+from checker.cli import run_main
 from jaxgrid.io import write_json
 
 #: One id per family that jaxgrid and NAVIX both ship.
@@ -42,16 +44,25 @@ FAMILY_IDS = (
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p = argparse.ArgumentParser(prog="python -m benchmarks.family_throughput", description=__doc__,
+                                formatter_class=argparse.RawTextHelpFormatter)  # fmt: skip
     p.add_argument("--ids", nargs="+", default=list(FAMILY_IDS), help="MiniGrid ids to measure")
-    p.add_argument("--num-envs", type=int, default=4096)
-    p.add_argument("--steps", type=int, help="scan length (default: the harness's budget)")
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--num-envs", type=integer, default=4096)
+    p.add_argument("--steps", type=integer, help="scan length (default: the harness's budget)")
+    p.add_argument("--repeats", type=integer, default=3)
     p.add_argument("--json", help="also write the results to this JSON file")
     args = p.parse_args(argv)
-    missing = ET.check_import("navix")
-    if missing:
-        p.error(f"navix does not import here ({missing}); see the module docstring")
+    for name in ("num_envs", "repeats", "steps"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            p.error(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+    import jaxgrid
+
+    unknown = [i for i in args.ids if i not in jaxgrid.registered_ids()]
+    if unknown:
+        p.error(f"--ids: {unknown[0]!r} is not a jaxgrid id")
+    # NAVIX is the other side of every row: without it there is nothing to compare.
+    require("navix", "every row (jaxgrid against NAVIX)")
     steps = args.steps or ET.default_steps(args.num_envs)
     rows, skipped = [], {}
     for env_id in args.ids:
@@ -93,4 +104,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main, "python -m benchmarks.family_throughput")

@@ -29,7 +29,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.cli import integer
 from benchmarks.timing import measure
+from checker.cli import run_main
 from jaxgrid import hazard_language as HL
 from jaxgrid import make
 from jaxgrid import monitor as M
@@ -122,12 +124,14 @@ def throughput(env_id: str, num_envs: int = 256, steps: int = 64, resets: int = 
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--episodes", type=int, default=10_000, help="episodes per constraint type")
+    p = argparse.ArgumentParser(prog="python -m benchmarks.hazard_checks", description=__doc__,
+                                formatter_class=argparse.RawTextHelpFormatter)  # fmt: skip
+    p.add_argument("--episodes", type=integer, default=10_000, help="episodes per constraint type")
     p.add_argument("--json", help="also write the figures to this JSON file")
     args = p.parse_args(argv)
     if args.episodes < 1:
         p.error(f"--episodes must be positive, got {args.episodes}")
+    jnp.zeros(())  # start the backend before timing anything
     start = time.time()
     env = make("HazardRooms-v0")
     figures = {"oracle": oracle_figures(env, args.episodes)}
@@ -151,5 +155,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    jnp.zeros(())  # start the backend before timing anything
-    main()
+    run_main(main, "python -m benchmarks.hazard_checks")

@@ -35,6 +35,8 @@ import jax
 import numpy as np
 from scipy.stats import chi2_contingency
 
+from benchmarks.cli import integer, real, require
+from checker.cli import run_main
 from jaxgrid.constants import GOAL, LAVA, OBJECT_NAMES, WALL
 from jaxgrid.io import write_json
 from jaxgrid.registry import make, registered_ids
@@ -210,21 +212,25 @@ def table(report: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.layout_fidelity",
+                                     description=__doc__.split("\n\n")[0])  # fmt: skip
     parser.add_argument("--ids", nargs="*", default=None, help="ids to check (default: all)")
-    parser.add_argument("--resets", type=int, default=2000, help="resets per side and id")
-    parser.add_argument("--alpha", type=float, default=1e-3, help="per-id significance")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--resets", type=integer, default=2000, help="resets per side and id")
+    parser.add_argument("--alpha", type=real, default=1e-3, help="per-id significance")
+    parser.add_argument("--seed", type=integer, default=0, help="seed of both sides' resets")
     parser.add_argument("--json", default=None, help="write the report here")
     args = parser.parse_args(argv)
     if args.resets < 20:
         parser.error(f"--resets must be at least 20, got {args.resets}")
     if not 0 < args.alpha < 1:
         parser.error(f"--alpha must lie in (0, 1), got {args.alpha}")
+    if args.seed < 0:  # MiniGrid's reset refuses it
+        parser.error(f"--seed must be >= 0, got {args.seed}")
     ids = args.ids or native_ids()
     unknown = [i for i in ids if i not in native_ids()]
     if unknown:
         parser.error(f"not a native MiniGrid id: {unknown[0]!r}; ids: {', '.join(native_ids())}")
+    require("minigrid", "the reference (MiniGrid's own resets)")
     report = {"alpha": args.alpha, "resets": args.resets, "ids": {}}
     for k, env_id in enumerate(ids):
         r = fidelity(env_id, args.resets, args.alpha, args.seed)
@@ -247,4 +253,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main, "python -m benchmarks.layout_fidelity")

@@ -74,7 +74,9 @@ from flax import struct
 from flax.linen.initializers import constant, orthogonal
 from flax.training.train_state import TrainState
 
+from benchmarks.cli import integer, require
 from benchmarks.timing import measure as timed_run
+from checker.cli import run_main
 
 DEFAULT_ENV = "Navix-DoorKey-8x8-v0"
 
@@ -577,16 +579,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     c = DEFAULT_CONFIG
-    parser.add_argument("--timesteps", type=int, default=c["TOTAL_TIMESTEPS"],
+    parser.add_argument("--timesteps", type=integer, default=c["TOTAL_TIMESTEPS"],
                         help="env steps to train for, rounded down to whole updates")
-    parser.add_argument("--num-envs", type=int, default=c["NUM_ENVS"], help="parallel envs")
-    parser.add_argument("--num-steps", type=int, default=c["NUM_STEPS"],
+    parser.add_argument("--num-envs", type=integer, default=c["NUM_ENVS"], help="parallel envs")
+    parser.add_argument("--num-steps", type=integer, default=c["NUM_STEPS"],
                         help="rollout length per update")
-    parser.add_argument("--update-epochs", type=int, default=c["UPDATE_EPOCHS"],
+    parser.add_argument("--update-epochs", type=integer, default=c["UPDATE_EPOCHS"],
                         help="epochs over each batch")
-    parser.add_argument("--num-minibatches", type=int, default=c["NUM_MINIBATCHES"],
+    parser.add_argument("--num-minibatches", type=integer, default=c["NUM_MINIBATCHES"],
                         help="minibatches per epoch")
-    parser.add_argument("--seed", type=int, default=0, help="PRNG seed of the run")
+    parser.add_argument("--seed", type=integer, default=0, help="PRNG seed of the run")
     parser.add_argument("--env", default=DEFAULT_ENV,
                         help="a Navix-* id (PureJaxRL's setting) or a jaxgrid id, e.g. "
                              "MiniGrid-DoorKey-8x8-v0 (the same learner on jaxgrid)")
@@ -606,6 +608,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if batch % args.num_minibatches:
         parser.error(f"--num-minibatches ({args.num_minibatches}) must divide --num-envs x "
                      f"--num-steps ({batch})")
+    if args.env.startswith("Navix-"):
+        require("navix", f"--env {args.env}",
+                instead="pass --env MiniGrid-DoorKey-8x8-v0 (the same learner on jaxgrid)")
     res = measure(
         total_timesteps=args.timesteps,
         num_envs=args.num_envs,
@@ -628,4 +633,4 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main, "python -m benchmarks.purejaxrl_ppo")

@@ -19,8 +19,10 @@ import jax.numpy as jnp
 from jax import lax
 
 from agents.config import REWARD_MODES
+from benchmarks.cli import integer
 from benchmarks.timing import compile_ahead, timed
 from benchmarks.train_speed import device_description, make_checker, make_config
+from checker.cli import run_main
 
 DEFAULTS = {"env": "TwoRooms-v0", "num_envs": 128, "num_steps": 64, "epochs": 4,
             "minibatches": 4}  # fmt: skip  (the experiments' PPO sizes)
@@ -57,12 +59,12 @@ class Agents:
 def main(argv=None) -> list[dict]:
     p = argparse.ArgumentParser(prog="python -m benchmarks.sweep_scaling",
                                 description=__doc__.splitlines()[0])  # fmt: skip
-    p.add_argument("--agents", type=int, nargs="+", default=[1, 4, 16, 64],
+    p.add_argument("--agents", type=integer, nargs="+", default=[1, 4, 16, 64],
                    help="agent counts to time (each one program)")  # fmt: skip
     p.add_argument("--mode", default="shaped", choices=REWARD_MODES, help="reward mode")
-    p.add_argument("--updates", type=int, default=2, help="updates per timed call")
-    p.add_argument("--repeats", type=int, default=3, help="interleaved timed rounds")
-    p.add_argument("--num-envs", type=int, default=DEFAULTS["num_envs"],
+    p.add_argument("--updates", type=integer, default=2, help="updates per timed call")
+    p.add_argument("--repeats", type=integer, default=3, help="interleaved timed rounds")
+    p.add_argument("--num-envs", type=integer, default=DEFAULTS["num_envs"],
                    help="envs per agent")  # fmt: skip
     args = p.parse_args(argv)
     for name in ("updates", "repeats", "num_envs"):
@@ -98,4 +100,4 @@ def main(argv=None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main, "python -m benchmarks.sweep_scaling")

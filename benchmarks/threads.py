@@ -25,8 +25,10 @@ import numpy as np
 from jax import lax
 
 from agents.config import REWARD_MODES, PPOConfig
+from benchmarks.cli import integer
 from benchmarks.timing import compile_ahead
 from benchmarks.train_speed import device_description, make_checker
+from checker.cli import run_main
 
 CALLS = 2  # calls of the compiled program per run and round
 EXPERIMENTS = ("two_rooms", "two_rooms_lava", "three_rooms_key", "hazard_rooms")
@@ -71,9 +73,9 @@ def main(argv=None) -> dict:
     p = argparse.ArgumentParser(prog="python -m benchmarks.threads", description=__doc__)
     p.add_argument("--experiment", default="two_rooms", choices=EXPERIMENTS)
     p.add_argument("--modes", nargs="+", default=["none", "shaped"], choices=REWARD_MODES)
-    p.add_argument("--seeds", type=int, default=5, help="agents per program (vmapped)")
-    p.add_argument("--updates", type=int, default=8, help="updates per call")
-    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--seeds", type=integer, default=5, help="agents per program (vmapped)")
+    p.add_argument("--updates", type=integer, default=8, help="updates per call")
+    p.add_argument("--rounds", type=integer, default=3)
     args = p.parse_args(argv)
     for name in ("seeds", "updates", "rounds"):
         if getattr(args, name) < 1:
@@ -124,4 +126,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main, "python -m benchmarks.threads")

@@ -58,7 +58,6 @@ benchmarks.train_speed`` pins both to one core for a steadier comparison.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import statistics
@@ -70,7 +69,9 @@ import jax.numpy as jnp
 from jax import lax
 
 from agents.config import REWARD_MODES, PPOConfig
+from benchmarks.cli import integer, require
 from benchmarks.timing import compile_ahead, timed
+from checker.cli import run_main
 from jaxgrid.io import write_jsonl
 
 MODES = REWARD_MODES
@@ -380,16 +381,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES, metavar="MODE",
                    help=f"reward modes to time, of {', '.join(MODES)}")
     p.add_argument("--env", default=DEFAULTS["env"], help="jaxgrid env id")
-    p.add_argument("--timesteps", type=int, default=DEFAULTS["timesteps"],
+    p.add_argument("--timesteps", type=integer, default=DEFAULTS["timesteps"],
                    help="env steps timed per mode, over all repeats")
-    p.add_argument("--num-envs", type=int, default=DEFAULTS["num_envs"], help="parallel envs")
-    p.add_argument("--num-steps", type=int, default=DEFAULTS["num_steps"],
+    p.add_argument("--num-envs", type=integer, default=DEFAULTS["num_envs"], help="parallel envs")
+    p.add_argument("--num-steps", type=integer, default=DEFAULTS["num_steps"],
                    help="rollout length per update")
-    p.add_argument("--epochs", type=int, default=DEFAULTS["epochs"],
+    p.add_argument("--epochs", type=integer, default=DEFAULTS["epochs"],
                    help="epochs over each batch")
-    p.add_argument("--minibatches", type=int, default=DEFAULTS["minibatches"],
+    p.add_argument("--minibatches", type=integer, default=DEFAULTS["minibatches"],
                    help="minibatches per epoch")
-    p.add_argument("--repeats", type=int, default=DEFAULTS["repeats"],
+    p.add_argument("--repeats", type=integer, default=DEFAULTS["repeats"],
                    help="timed calls per mode; sps and ratio are medians")
     p.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=True,
                    help="also time the PureJaxRL baseline (needs navix)")
@@ -398,12 +399,12 @@ def _parser() -> argparse.ArgumentParser:
                    f"{JAXGRID_DOORKEY}, in the same rounds")
     p.add_argument("--profile", action="store_true", default=False,
                    help="add a per-update time breakdown to each line")
-    p.add_argument("--ops", type=int, default=0, metavar="N",
+    p.add_argument("--ops", type=integer, default=0, metavar="N",
                    help="add the N costliest XLA kernels and model places of an update "
                    "(profiler trace; 0: off)")
     p.add_argument("--mlp", action="store_true", default=False,
                    help="time the policy without its convolution (PPOConfig.conv_channels=())")
-    p.add_argument("--cell-dim", type=int, default=PPOConfig().cell_dim, metavar="N",
+    p.add_argument("--cell-dim", type=integer, default=PPOConfig().cell_dim, metavar="N",
                    help="features per view cell (PPOConfig.cell_dim)")
     p.add_argument("--film-codes", action="store_true",
                    help="the sentence also scales the cells' one-hot codes "
@@ -430,8 +431,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         jaxgrid.make(args.env)
     except ValueError as e:
         p.error(f"--env: {e}")
-    if args.baseline and importlib.util.find_spec("navix") is None:
-        p.error("--baseline needs navix (pip install -e '.[bench]'); or pass --no-baseline")
+    if args.baseline:  # on by default: the ratio to it is what this benchmark reports
+        require("navix", "--baseline (PureJaxRL on NAVIX)", instead="pass --no-baseline")
     args.modes = list(dict.fromkeys(args.modes))
     return args
 
@@ -569,4 +570,4 @@ def main(argv=None) -> list[dict[str, Any]]:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main, "python -m benchmarks.train_speed")
