@@ -20,14 +20,13 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import sys
 import time
 
 import jax
 
 from checker import cli
 from checker.policies import NoisyOracleParams
-from checker.train import CheckerTrainConfig, train_checker
+from checker.train import CheckerTrainConfig, check_window_scenario, train_checker
 
 PAPER_SAMPLES = {"TwoRooms-v0": 12_000, "TwoRoomsLava-v0": 15_000}
 TRANSFER_TARGET = "ThreeRoomsKey-v0"
@@ -37,8 +36,7 @@ TRANSFER_TARGET = "ThreeRoomsKey-v0"
 class CheckerRun:
     """Collect windows with the noisy oracle, train a checker on them and measure it."""
 
-    out: str  # directory of the checker (params.msgpack, config.json) and of metrics.json; new
-    # or empty, unless --overwrite
+    out: str  # the checker's directory: new, empty, or (with --overwrite) an earlier checker's
     env: str = "TwoRooms-v0"  # the environment id whose windows are collected
     samples: int = 0  # windows collected; 0: the paper's size (15k TwoRoomsLava-v0, else 12k)
     num_envs: int = 256  # parallel envs of every collection
@@ -60,6 +58,11 @@ class CheckerRun:
             raise ValueError(f"CheckerRun.out {self.out} is a file, not a directory")
         if self.env not in jaxgrid.registered_ids():
             raise ValueError(f"CheckerRun.env: unknown environment id {self.env!r}")
+        why = "its noisy oracle plans around that door and lava, and labels windows by them"
+        try:
+            check_window_scenario(self.env, "python -m checker", why)
+        except ValueError as e:
+            raise ValueError(f"CheckerRun.env {e}") from None
         minimum = {"samples": 0, "num_envs": 1, "heldout_samples": 0, "transfer_samples": 0,
                    "episode_envs": 1, "episode_steps": 0}  # fmt: skip
         for name, low in minimum.items():
@@ -78,31 +81,6 @@ class CheckerRun:
     def samples_used(self) -> int:
         """``samples``, or the paper's size for ``env`` when it is 0."""
         return self.samples or PAPER_SAMPLES.get(self.env, 12_000)
-
-
-# What a checker run writes into --out: all that --overwrite removes.
-OUTPUTS = ("params.msgpack", "config.json", "metrics.json", "report.json")
-
-
-def _fresh_out(args: CheckerRun) -> None:
-    """Make ``--out`` (locked by this process) empty: refuse a non-empty one without
-    ``--overwrite``; with it, remove a checker run's files and refuse anything else."""
-    from jaxgrid.rundir import LOCK_FILE
-
-    entries = sorted(e for e in os.listdir(args.out) if e != LOCK_FILE)
-    if not entries:
-        return
-    if not args.overwrite:
-        raise ValueError(f"--out {args.out} is not empty ({', '.join(entries[:5])}); pick a new "
-                         "directory, or pass --overwrite to replace the checker there")  # fmt: skip
-    foreign = [e for e in entries if e not in OUTPUTS and not e.endswith(".tmp")]
-    if foreign:
-        raise ValueError(f"--out {args.out} holds files no checker run writes "
-                         f"({', '.join(foreign[:5])}); --overwrite clears only a checker "
-                         "directory: pick a new --out")  # fmt: skip
-    for e in entries:
-        os.remove(os.path.join(args.out, e))
-    print(f"--overwrite: removed {', '.join(entries)} from {args.out}", file=sys.stderr)
 
 
 def parse(argv=None) -> CheckerRun:
@@ -127,14 +105,17 @@ def main(argv=None) -> dict:
 
     Bad flags exit with status 2 before anything compiles. ``--out`` is locked for the run
     (:func:`jaxgrid.rundir.lock`); before any work, a second process on it gets
-    :class:`~jaxgrid.rundir.LockHeld` and a non-empty ``--out`` without ``--overwrite`` a
-    ``ValueError`` (``python -m checker`` exits with status 2 on both).
+    :class:`~jaxgrid.rundir.LockHeld`, and a non-empty ``--out`` without ``--overwrite`` (or
+    one that is not a checker directory) a ``ValueError``
+    (:func:`checker.trained.fresh_checker_dir`): ``python -m checker`` exits with status 2 on
+    both, and with 130 at once on Ctrl-C (:func:`checker.cli.run_main`).
     """
     args = parse(argv)
+    from checker.trained import fresh_checker_dir
     from jaxgrid.rundir import lock
 
     with lock(args.out, "python -m checker"):
-        _fresh_out(args)
+        fresh_checker_dir(args.out, args.overwrite)
         return _run(args)
 
 
@@ -229,10 +210,4 @@ def _run(args: CheckerRun) -> dict:
 
 
 if __name__ == "__main__":
-    from jaxgrid.rundir import LockHeld
-
-    try:
-        main()
-    except (ValueError, FileNotFoundError, LockHeld) as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)
+    cli.run_main(main, "python -m checker")

@@ -17,7 +17,7 @@ frame: a turn and a step forward can show the same cells, and only the step ente
 checker of the step into each frame (``label="into"``) needs it most. A learner knows the
 action it took, and a shield the action of each candidate.
 
-Usage: ``python -m checker.memory --json runs/memory_checker.json`` (``--help`` for flags).
+Usage: ``python -m checker.memory --json runs/memory_checker.json [--out DIR]`` (``--help``).
 
 Data are whole streams of ``BatchedAutoReset(HazardRooms)`` under a random behaviour policy
 (:func:`collect_streams`), collected on device; training is truncated-free backpropagation
@@ -29,8 +29,10 @@ overall, per constraint type, and on the budget episodes whose violation comes m
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import flax.linen as nn
@@ -42,7 +44,14 @@ import optax
 
 from checker.metrics import auroc
 from checker.model import NUM_COLOURS, NUM_OBJECTS, NUM_STATES, embed_cells, encode_sentence
-from checker.trained import check_vocab, read_meta, read_params, write_params
+from checker.trained import (
+    check_vocab,
+    check_writable_file,
+    fresh_checker_dir,
+    read_meta,
+    read_params,
+    write_params,
+)
 from jaxgrid import hazard_language as HL
 from jaxgrid.oracle import oracle_action
 from jaxgrid.wrappers import BatchedAutoReset
@@ -390,7 +399,7 @@ class MemoryTrainConfig:
     # "next": the step out of each frame violates (the paper's just-before label); "into":
     # the step into it did (what a shield asks of a candidate frame)
     label: str = "next"
-    seed: int = 0
+    seed: int = 0  # seeds the streams (the test streams: seed + 1000) and the training
 
     def __post_init__(self):
         me = type(self).__name__
@@ -523,11 +532,8 @@ def evaluate_streams(probs, data: dict, late: int = 10, label: str = "next") -> 
     report["per_type"] = per_type
     budget = data["ctype"] == HL.CONSTRAINT_TYPES.index("budget")
     m = valid & budget & late_violation_mask(data, late, label)
-    report["late_budget"] = {
-        "late": late,
-        "auroc": auroc(y[m], probs[m]),
-        "positives": int(y[m].sum()),
-    }
+    report["late_budget"] = {"late": late, "auroc": auroc(y[m], probs[m]),
+                             "positives": int(y[m].sum())}  # fmt: skip
     # Counting itself: among budget frames whose labelled step costs, which ones exceed the
     # budget? A checker that does not count cannot rank these (AUROC near 0.5).
     step_cost = data["next_cost"] if label == "next" else data["cost"]
@@ -589,63 +595,54 @@ def run(
     return report
 
 
+PROG = "python -m checker.memory"
+
+
+@dataclasses.dataclass(frozen=True)
+class MemoryRun:
+    """Train the recurrent checker on HazardRooms streams; AUROC per type."""
+
+    train: MemoryTrainConfig = MemoryTrainConfig()  # streams (--envs) and training
+    late: int = 10  # steps that make a violation late
+    memory: bool = True  # False (--no-memory): zero the memory at every frame (the ablation)
+    actions: bool = False  # read the action into each frame beside it
+    json: str | None = None  # write the report here
+    out: str | None = None  # save the checker here: new, empty, or (--overwrite) a checker's
+    overwrite: bool = False  # clear an earlier checker's files from --out first (else refused)
+
+    def __post_init__(self):
+        if self.late < 1:
+            raise ValueError(f"MemoryRun.late must be at least 1, got {self.late}")
+        if self.json is not None:
+            check_writable_file(self.json, "MemoryRun.json")
+        if self.out is not None and (not self.out or Path(self.out).is_file()):
+            raise ValueError(f"MemoryRun.out {self.out!r} is not a directory")
+
+
 def main(argv=None) -> dict:
-    """``python -m checker.memory``: train and measure a memory checker on HazardRooms."""
-    import argparse
+    """``python -m checker.memory``: train and measure a memory checker on HazardRooms.
+
+    Before any work, bad flags and an unwritable ``--json`` exit with status 2, and so do an
+    ``--out`` held by another process (locked for the run, :func:`jaxgrid.rundir.lock`) and
+    a non-empty one, unless it holds an earlier checker and ``--overwrite`` is given
+    (:func:`checker.trained.fresh_checker_dir`, as for ``python -m checker``)."""
+    import contextlib
     import json
 
+    from checker import cli
     from jaxgrid.io import write_json
+    from jaxgrid.rundir import lock
 
-    parser = argparse.ArgumentParser(
-        prog="python -m checker.memory",
-        description="Train the recurrent checker on HazardRooms streams; AUROC per type.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    d = MemoryTrainConfig()
-    parser.add_argument("--envs", type=int, default=d.streams, help="streams collected per split")
-    parser.add_argument("--steps", type=int, default=d.steps, help="frames per stream")
-    parser.add_argument("--updates", type=int, default=d.updates, help="training updates")
-    parser.add_argument(
-        "--batch-streams", type=int, default=d.batch_streams, help="streams per update"
-    )
-    parser.add_argument(
-        "--guided", type=float, default=d.guided,
-        help="share of actions taken from the oracle (half of the streams obeying, half not)",
-    )
-    parser.add_argument(
-        "--label", choices=LABELS, default=d.label,
-        help="what a frame's label says: the step out of it violates (next), or the step into it",
-    )
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--late", type=int, default=10, help="steps that make a violation late")
-    parser.add_argument(
-        "--no-memory", action="store_true", help="zero the memory at every frame (ablation)"
-    )
-    parser.add_argument(
-        "--actions", action="store_true", help="read the action into each frame beside it"
-    )
-    parser.add_argument("--json", default=None, help="write the report here")
-    parser.add_argument("--out", default=None, help="save the trained checker in this directory")
-    args = parser.parse_args(argv)
-    if args.late < 1:
-        parser.error(f"--late must be at least 1, got {args.late}")
-    dests = {"streams": "envs", "steps": "steps", "updates": "updates",
-             "batch_streams": "batch_streams", "guided": "guided", "label": "label",
-             "seed": "seed"}  # fmt: skip
-    try:  # the config checks the values; its messages are given in the flags' names
-        train = MemoryTrainConfig(**{field: getattr(args, d) for field, d in dests.items()})
-    except ValueError as e:
-        from checker.cli import flag_names
-
-        flags = {f"MemoryTrainConfig.{f}": "--" + d.replace("_", "-") for f, d in dests.items()}
-        parser.error(flag_names(str(e), flags))
-    report = run(
-        config=MemoryCheckerConfig(memory=not args.no_memory, actions=args.actions),
-        train=train,
-        late=args.late,
-        progress=True,
-        out=args.out,
-    )
+    args = cli.parse(MemoryRun, argv, prog=PROG, description=MemoryRun.__doc__,
+                     names={MemoryTrainConfig: {"streams": "envs"}})  # fmt: skip
+    with lock(args.out, PROG) if args.out else contextlib.nullcontext():
+        if args.out:
+            fresh_checker_dir(args.out, args.overwrite)
+        t = args.train
+        print(f"{PROG}: {t.streams} streams x {t.steps} frames of HazardRooms-v0, {t.updates} "
+              "updates", file=sys.stderr, flush=True)  # fmt: skip
+        report = run(config=MemoryCheckerConfig(memory=args.memory, actions=args.actions),
+                     train=t, late=args.late, progress=True, out=args.out)  # fmt: skip
     print(json.dumps({k: report[k] for k in ("train", "heldout") if k in report}, indent=1))
     if args.json:
         write_json(args.json, report)
@@ -653,4 +650,6 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from checker import cli
+
+    cli.run_main(main, PROG)

@@ -39,7 +39,40 @@ from checker.model import Checker, CheckerConfig, init_params
 from checker.trained import TrainedChecker
 from jaxgrid import language
 
-__all__ = ["CheckerTrainConfig", "train_checker"]
+__all__ = ["CheckerTrainConfig", "check_window_scenario", "train_checker", "window_scenarios"]
+
+
+def window_scenarios() -> list[str]:
+    """The registered ids whose windows a window checker learns: the paper's scenarios
+    (:class:`jaxgrid.scenarios.Scenario`), whose constraint forbids a door colour, lava or
+    both. The noisy oracle plans around (or seeks) that door and lava, and
+    :func:`checker.collect` labels windows by it; other envs have no such constraint."""
+    import jaxgrid
+    from jaxgrid.scenarios import Scenario
+
+    return [i for i in jaxgrid.registered_ids() if isinstance(jaxgrid.make(i), Scenario)]
+
+
+def check_window_scenario(env_id: str, command: str, why: str) -> None:
+    """``ValueError`` unless ``env_id`` is one of :func:`window_scenarios`, naming them and
+    saying why ``command`` needs one (``why``: what it does with the constraint) and what the
+    env has instead. Builds no program: a command calls it while checking its flags."""
+    import jaxgrid
+    from jaxgrid.hazard import HazardRooms
+
+    ids = window_scenarios()
+    if env_id in ids:
+        return
+    if isinstance(jaxgrid.make(env_id), HazardRooms):  # an unknown id: make's ValueError
+        instead = (f"{env_id}'s constraints (budgets, sequences, proximity, ...) are learnt by "
+                   "a memory checker: python -m checker.memory")  # fmt: skip
+    elif env_id.startswith("MiniGrid-"):
+        instead = f"{env_id} has no constraint, so there is no violation to measure"
+    else:
+        instead = f"{env_id} is not one of them"
+    raise ValueError(f"{env_id}: {command} needs one of the paper's scenarios "
+                     f"({', '.join(ids)}), whose constraint forbids a door colour or lava, "
+                     f"since {why}; {instead}")  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)

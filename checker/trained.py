@@ -7,11 +7,18 @@ it was trained with, and ``params_sha256``, the checksum of ``params.msgpack``).
 refuses a directory made for another vocabulary or sentence length, since token ids would then
 mean other words, and a parameter file whose checksum differs (truncated, bit-flipped, or
 replaced without its ``config.json``), which would otherwise load as other numbers.
+
+The checker commands share what they check of their outputs before any work:
+:func:`fresh_checker_dir` (a checker's ``--out`` is new, empty, or an earlier checker's that
+``--overwrite`` clears, so no report of other parameters survives beside new ones) and
+:func:`check_writable_file` (a report's path can be written).
 """
 
 from __future__ import annotations
 
 import os
+import sys
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -21,11 +28,13 @@ from flax import serialization, struct
 from checker.model import Checker, CheckerConfig, candidate_logits, init_params, params_shape
 from jaxgrid import language
 from jaxgrid.io import atomic_write, read_json, write_json
-from jaxgrid.rundir import sha256_bytes
+from jaxgrid.rundir import LOCK_FILE, sha256_bytes, writing
 
 PARAMS_FILE = "params.msgpack"
 CONFIG_FILE = "config.json"
 FORMAT_VERSION = 1
+# What the checker commands write into a checker directory: all that --overwrite removes.
+CHECKER_FILES = (PARAMS_FILE, CONFIG_FILE, "metrics.json", "report.json")
 
 
 class TrainedChecker(struct.PyTreeNode):
@@ -116,10 +125,13 @@ def check_vocab(meta: dict, where: str, lang=language) -> None:
     """Raise ``ValueError`` if ``meta`` (with ``vocab``/``max_len``) is not the vocabulary of
     ``lang`` (a language module: :mod:`jaxgrid.language` or :mod:`jaxgrid.hazard_language`)."""
     vocab, max_len = meta.get("vocab"), meta.get("max_len")
+    if not isinstance(vocab, list):
+        raise ValueError(f"{where}: its {CONFIG_FILE} records no constraint vocabulary (not a "
+                         "checker's, or damaged), so its token ids cannot be checked")  # fmt: skip
     if vocab != list(lang.VOCAB) or max_len != lang.MAX_LEN:
         raise ValueError(
-            f"{where} was made for another constraint vocabulary (vocab of "
-            f"{len(vocab) if isinstance(vocab, list) else vocab!r} words, MAX_LEN {max_len}); "
+            f"{where} was made for another constraint vocabulary ({len(vocab)} words, MAX_LEN "
+            f"{max_len}); "
             f"this {lang.__name__} has {lang.vocab_size()} words and MAX_LEN "
             f"{lang.MAX_LEN}, so its token ids would mean other words"
         )
@@ -128,12 +140,14 @@ def check_vocab(meta: dict, where: str, lang=language) -> None:
 def write_params(params, directory: str | os.PathLike, meta: dict) -> str:
     """Write ``params`` to ``params.msgpack`` and ``meta`` with its checksum to
     ``config.json``, each atomically, parameters first: a reader never sees half a file, and
-    a crash between the two leaves a ``config.json`` whose checksum the new parameters fail."""
+    a crash between the two leaves a ``config.json`` whose checksum the new parameters fail.
+    Ctrl-C (:func:`jaxgrid.rundir.exit_now`) waits for both."""
     directory = os.fspath(directory)
     data = serialization.to_bytes(jax.device_get(params))
-    atomic_write(os.path.join(directory, PARAMS_FILE), data)
     meta = {"format_version": FORMAT_VERSION, "params_sha256": sha256_bytes(data), **meta}
-    write_json(os.path.join(directory, CONFIG_FILE), meta)
+    with writing():
+        atomic_write(os.path.join(directory, PARAMS_FILE), data)
+        write_json(os.path.join(directory, CONFIG_FILE), meta)
     return directory
 
 
@@ -159,6 +173,60 @@ def read_meta(directory: str | os.PathLike) -> dict:
         if not os.path.isfile(p):
             raise FileNotFoundError(f"checker file not found: {p}")
     return read_json(os.path.join(directory, CONFIG_FILE))
+
+
+def checker_kind(directory: str | os.PathLike) -> str:
+    """What the checker saved in ``directory`` remembers, ``"window"`` or ``"memory"``, from
+    its ``config.json`` alone (nothing is loaded or compiled), so that a command can refuse a
+    checker of the wrong kind among its flags; errors as :func:`read_meta`'s."""
+    kind = read_meta(directory).get("kind", "window")
+    if kind not in ("window", "memory"):
+        raise ValueError(f"{os.path.join(os.fspath(directory), CONFIG_FILE)}: unknown checker "
+                         f"kind {kind!r}")  # fmt: skip
+    return kind
+
+
+def fresh_checker_dir(out: str | os.PathLike, overwrite: bool) -> None:
+    """Make the checker directory ``out`` (created and locked by the caller) empty, so that no
+    file of an earlier checker (a report of other parameters) survives beside a new one.
+
+    A non-empty ``out`` raises ``ValueError`` unless ``overwrite``; with it, the files of
+    :data:`CHECKER_FILES` (and temporaries of an interrupted write) are removed, and a
+    directory holding anything else is refused: it is not a checker directory.
+    """
+    out = os.fspath(out)
+    entries = sorted(e for e in os.listdir(out) if e != LOCK_FILE)
+    if not entries:
+        return
+    if not overwrite:
+        raise ValueError(f"--out {out} is not empty ({', '.join(entries[:5])}); pick a new "
+                         "directory, or pass --overwrite to replace the checker there")  # fmt: skip
+    foreign = [e for e in entries if e not in CHECKER_FILES and not e.endswith(".tmp")]
+    if foreign:
+        raise ValueError(f"--out {out} holds files no checker command writes "
+                         f"({', '.join(foreign[:5])}); --overwrite clears only a checker "
+                         "directory: pick a new --out")  # fmt: skip
+    for e in entries:
+        os.remove(os.path.join(out, e))
+    print(f"--overwrite: removed {', '.join(entries)} from {out}", file=sys.stderr)
+
+
+def check_writable_file(path: str | os.PathLike, name: str = "") -> None:
+    """``ValueError`` (its message starting with ``name``, e.g. ``Config.out``, which the
+    command line shows as the flag) unless a file can be written at ``path``: a file there is
+    replaced, the directories missing above it are created when it is written. Creates
+    nothing. A command checks its output file so before its work, whose results a bad path
+    would otherwise lose at the end."""
+    target, what = Path(os.path.abspath(path)), f"{name} {path}".strip()
+    if target.is_dir():
+        raise ValueError(f"{what} is a directory, not a file")
+    above = target.parent
+    while not above.exists():
+        above = above.parent
+    if not above.is_dir():
+        raise ValueError(f"{what}: {above} is a file, not a directory")
+    if not os.access(above, os.W_OK | os.X_OK):
+        raise ValueError(f"{what}: not writable (no permission to write in {above})")
 
 
 def read_params(directory: str | os.PathLike, template, meta: dict):

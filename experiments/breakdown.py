@@ -14,6 +14,9 @@ shield modes the shield is on unless ``--policy-alone``.
 Each agent's ``stages`` say how far its episodes get: the fraction that carried an object
 and that entered each room beyond the first (rooms are split by the walls that run across
 the grid), next to the goal's. An agent that never finds the goal shows where it stops.
+
+The results (printed, and ``checkpoint`` in ``--out``) name the checkpoint replayed: the
+newest that passes its checksums, which is an older one when the newest is damaged.
 """
 
 from __future__ import annotations
@@ -28,11 +31,13 @@ import numpy as np
 import checker as chk
 from agents.runner import load_agents
 from checker import cli
-from checker.trained import params_sha256
+from checker.trained import check_writable_file, params_sha256
 from experiments.memory_phase import SHIELD_CHECKER
 from jaxgrid import hazard_language, language
 from jaxgrid.constants import DOOR, EMPTY, WALL
 from jaxgrid.io import read_json, write_json
+
+PROG = "python -m experiments.breakdown"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,6 +60,8 @@ class BreakdownConfig:
             raise ValueError(f"{me}.checker {self.checker}: no trained checker there")
         if not isinstance(self.episodes, int) or self.episodes < 1:
             raise ValueError(f"{me}.episodes must be an integer >= 1, got {self.episodes!r}")
+        if self.out is not None:
+            check_writable_file(self.out, f"{me}.out")
 
 
 def _checker_of(cfg: BreakdownConfig):
@@ -114,12 +121,23 @@ def stage_tracker(env, key: jax.Array):
     return names, track
 
 
+def replayed_checkpoint(run_dir: str, agents: dict) -> dict:
+    """Which checkpoint ``agents`` (:func:`agents.runner.load_agents`'s) were read from:
+    ``chunks`` (its step: the chunks trained, of ``num_chunks``), ``complete``, and
+    ``newest``, whether no newer checkpoint is kept (``newest_chunks``): the loader reads an
+    older one when the newest fails its checksums, and the results are then of that one."""
+    steps = [int(p.name) for p in (Path(run_dir) / "checkpoints").iterdir()
+             if p.is_dir() and p.name.isdigit()]  # fmt: skip
+    newest = max(steps, default=agents["chunks"])
+    return {"chunks": agents["chunks"], "num_chunks": agents["config"].num_chunks,
+            "complete": agents["complete"], "newest": agents["chunks"] >= newest,
+            "newest_chunks": newest}  # fmt: skip
+
+
 def run(cfg: BreakdownConfig) -> dict:
     agents = load_agents(cfg.run, _checker_of(cfg))
     learner, config = agents["learner"], agents["config"]
-    if not agents["complete"]:
-        print(f"{cfg.run}: unfinished ({agents['chunks']} of {config.num_chunks} chunks); "
-              "replaying its newest checkpoint")  # fmt: skip
+    checkpoint = replayed_checkpoint(cfg.run, agents)
     key = jax.random.PRNGKey(cfg.seed)
     reset_key, _ = jax.random.split(key)  # play_episodes draws its layouts from this key
     _, ts = jax.jit(jax.vmap(learner.env.reset))(jax.random.split(reset_key, cfg.episodes))
@@ -143,15 +161,22 @@ def run(cfg: BreakdownConfig) -> dict:
                                    "violation_rate": float(ep["violated"][m].mean()),
                                    "success_rate": float(ep["success"][m].mean())}  # fmt: skip
         rows.append(row)
-    _print(cfg, rows)
-    out = {"config": dataclasses.asdict(cfg), "mode": config.reward_mode, "agents": rows}
+    _print(cfg, rows, checkpoint)
+    out = {"config": dataclasses.asdict(cfg), "mode": config.reward_mode,
+           "checkpoint": checkpoint, "agents": rows}  # fmt: skip
     if cfg.out:
         write_json(Path(cfg.out), out)
     return out
 
 
-def _print(cfg: BreakdownConfig, rows: list[dict]) -> None:
+def _print(cfg: BreakdownConfig, rows: list[dict], checkpoint: dict) -> None:
     names = list(rows[0]["groups"])
+    c = checkpoint
+    state = "finished" if c["complete"] else "unfinished"
+    older = "" if c["newest"] else (f"; the newest, after {c['newest_chunks']} chunks, fails "
+                                    "its checksums")  # fmt: skip
+    print(f"{cfg.run}: checkpoint after {c['chunks']} of {c['num_chunks']} chunks ({state}"
+          f"{older})")  # fmt: skip
     print(f"{cfg.run}: violation % / success % over {cfg.episodes} episodes per agent")
     swept = [k for k in rows[0]
              if k not in ("seed", "violation_rate", "success_rate", "groups", "stages")]
@@ -172,12 +197,16 @@ def _print(cfg: BreakdownConfig, rows: list[dict]) -> None:
 
 
 def main(argv=None) -> dict:
-    cfg = cli.parse(BreakdownConfig, argv, prog="python -m experiments.breakdown",
-                    description=__doc__.split("\n\n")[0])  # fmt: skip
+    """Replay the run of ``argv`` (default ``sys.argv[1:]``); returns the results.
+
+    A directory that is no run, a checker that is not the run's, or an ``--out`` that cannot
+    be written exits with status 2 before anything compiles."""
+    cfg = cli.parse(BreakdownConfig, argv, prog=PROG, description=__doc__.split("\n\n")[0])
     return run(cfg)
 
 
 if __name__ == "__main__":
-    main()
+    cli.run_main(main, PROG)
 
-__all__ = ["BreakdownConfig", "dividing_walls", "groups", "main", "run", "stage_tracker"]
+__all__ = ["BreakdownConfig", "dividing_walls", "groups", "main", "replayed_checkpoint", "run",
+           "stage_tracker"]

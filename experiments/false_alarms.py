@@ -26,11 +26,14 @@ import checker as chk
 import jaxgrid
 from checker import cli
 from checker.data import front_cells
+from checker.train import check_window_scenario
+from checker.trained import check_writable_file, checker_kind
 from jaxgrid import language
 from jaxgrid.constants import COLOR_NAMES, DOOR, OBJECT_NAMES, STATE_NAMES
 from jaxgrid.io import write_json
 
 POLICIES = ("random", "oracle")
+PROG = "python -m experiments.false_alarms"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,10 +51,23 @@ class FalseAlarmConfig:
 
     def __post_init__(self):
         me = type(self).__name__
-        if not self.checker or not (Path(self.checker) / "config.json").exists():
-            raise ValueError(f"{me}.checker {self.checker!r}: no trained checker there")
+        if not self.checker:
+            raise ValueError(f"{me}.checker: a trained checker's directory is required")
+        try:
+            kind = checker_kind(self.checker)
+        except (OSError, ValueError) as e:
+            raise ValueError(f"{me}.checker {self.checker}: no trained checker there "
+                             f"({e})") from None  # fmt: skip
+        if kind != "window":
+            raise ValueError(f"{me}.checker {self.checker}: a {kind} checker; this scores the "
+                             "windows of a window checker")  # fmt: skip
         if self.env_id not in jaxgrid.registered_ids():
             raise ValueError(f"{me}.env_id {self.env_id!r} is not a registered environment")
+        try:
+            check_window_scenario(self.env_id, PROG, "its windows are labelled by that door and "
+                                  "lava (and the oracle plans around them)")  # fmt: skip
+        except ValueError as e:
+            raise ValueError(f"{me}.env_id {e}") from None
         if self.policy not in POLICIES:
             raise ValueError(f"{me}.policy must be one of {POLICIES}, got {self.policy!r}")
         if not 0 <= self.epsilon <= 1:
@@ -60,6 +76,8 @@ class FalseAlarmConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{me}.{name} must be an integer >= 1, got {value!r}")
+        if self.out is not None:
+            check_writable_file(self.out, f"{me}.out")
 
 
 def front_groups(front: np.ndarray, named: np.ndarray) -> np.ndarray:
@@ -83,7 +101,7 @@ def _named_colours(tokens: np.ndarray) -> np.ndarray:
 
 def run(cfg: FalseAlarmConfig) -> dict:
     trained = chk.load(cfg.checker)
-    if trained.kind != "window":
+    if trained.kind != "window":  # FalseAlarmConfig refuses one; a directory changed since
         raise ValueError(f"{cfg.checker}: a {trained.kind} checker; this scores window checkers")
     env = jaxgrid.make(cfg.env_id)
     if cfg.policy == "random":
@@ -128,12 +146,16 @@ def _print(cfg: FalseAlarmConfig, total: dict, rows: dict) -> None:
 
 
 def main(argv=None) -> dict:
-    cfg = cli.parse(FalseAlarmConfig, argv, prog="python -m experiments.false_alarms",
-                    description=__doc__.split("\n\n")[0])  # fmt: skip
+    """Count the alarms of ``argv``'s checker (default ``sys.argv[1:]``); returns the counts.
+
+    A checker that is not a window checker, an ``--env-id`` that is none of the paper's
+    scenarios, or an ``--out`` that cannot be written exits with status 2 before anything
+    compiles."""
+    cfg = cli.parse(FalseAlarmConfig, argv, prog=PROG, description=__doc__.split("\n\n")[0])
     return run(cfg)
 
 
 if __name__ == "__main__":
-    main()
+    cli.run_main(main, PROG)
 
 __all__ = ["FalseAlarmConfig", "POLICIES", "front_groups", "main", "run"]

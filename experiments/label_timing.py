@@ -8,9 +8,14 @@ The paper labels a window positive when a violation happens in the next step (``
 punishing them afterwards. This runs the TwoRooms pipeline in ``checker`` mode twice, once
 per labelling, with everything else equal, and writes ``DIR/label_timing.json`` and
 ``DIR/label_timing.md``: checker metrics, violations during training and the final
-evaluation of each. Flags are those of :mod:`experiments.two_rooms` (except ``--lookahead``
-and ``--modes``); the blocked and lava counterfactuals and ``alarm_forward`` are off in both
-arms, since they act only at lookahead 1 or charge the step after an alarm.
+evaluation of each. Flags are those of :mod:`experiments.two_rooms` (except ``--lookahead``,
+``--modes`` and ``--checker``: each arm trains its own checker, with its labels); the blocked
+and lava counterfactuals and ``alarm_forward`` are off in both arms, since they act only at
+lookahead 1 or charge the step after an alarm.
+
+As the other experiments: ``--out`` is locked for the run (:func:`jaxgrid.rundir.lock`), both
+arms' directories (``DIR/lookahead1``, ``DIR/lookahead0``) are checked before either trains,
+and Ctrl-C keeps the finished phases, which a rerun with the same flags resumes.
 """
 
 from __future__ import annotations
@@ -19,8 +24,9 @@ import dataclasses
 import sys
 from pathlib import Path
 
+from checker import cli
 from checker.train import CheckerTrainConfig
-from experiments import stats
+from experiments import phases, stats
 from experiments.pipeline import (
     ExperimentConfig,
     default_out,
@@ -29,6 +35,7 @@ from experiments.pipeline import (
     run_experiment,
     scenario,
 )
+from jaxgrid import rundir
 from jaxgrid.io import write_json
 
 # Both arms without the options that exist only at lookahead 1 (the blocked and lava
@@ -39,8 +46,10 @@ SCENARIO = override(scenario("label_timing", "TwoRooms-v0"), dict(
     modes=("checker",), ppo=dict(alarm_forward=False),
     checker_train=dict(blocked=0, lava_counterfactuals=False),
 ))  # fmt: skip
-# The ablation sets these itself.
-HIDDEN = {ExperimentConfig: {"modes": None}, CheckerTrainConfig: {"lookahead": None}}
+# The ablation sets these itself; a given --checker has one labelling, not the two compared.
+HIDDEN = {ExperimentConfig: {"modes": None, "checker": None},
+          CheckerTrainConfig: {"lookahead": None}}  # fmt: skip
+PROG = "python -m experiments.label_timing"
 LABELS = {1: "just before (lookahead 1)", 0: "after (lookahead 0)"}
 
 
@@ -70,14 +79,41 @@ def _comparison(results: dict, key: str) -> str:
 
 
 def main(argv=None) -> dict:
-    cfg = parse_args(sys.argv[1:] if argv is None else argv, SCENARIO, hide=HIDDEN)
+    """Run both arms of the ablation with ``argv`` (default ``sys.argv[1:]``) and write the
+    report; returns each arm's results, by lookahead.
+
+    Bad flags exit with status 2 before anything compiles; ``--checker`` is refused
+    (``ValueError``), and so, before either arm trains, is an ``--out`` that cannot be written
+    or that holds a run of other flags; a second process on it gets
+    :class:`~jaxgrid.rundir.LockHeld`. Ctrl-C exits with status 130 and says how to resume.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if any(a == "--checker" or a.startswith("--checker=") for a in argv):
+        raise ValueError("--checker: label_timing trains one checker per labelling (lookahead "
+                         "1 and 0) and compares them; a trained checker has one labelling")
+    cfg = parse_args(argv, SCENARIO, hide=HIDDEN)
     out = Path(cfg.out or default_out(cfg.experiment))
-    results = {}
-    for k, name in LABELS.items():
+    arms = {}
+    for k in LABELS:
         labels = dataclasses.replace(cfg.checker_train, lookahead=k)
-        sub = dataclasses.replace(cfg, experiment=f"label_timing_lookahead{k}", modes=("checker",),
-                                  checker_train=labels, out=str(out / f"lookahead{k}"))  # fmt: skip
-        print(f"== checker trained with labels {name}")
+        arms[k] = dataclasses.replace(cfg, experiment=f"label_timing_lookahead{k}",
+                                      modes=("checker",), checker_train=labels,
+                                      out=str(out / f"lookahead{k}"))  # fmt: skip
+    try:
+        with rundir.lock(out, PROG):
+            for sub in arms.values():  # both arms' directories, before either trains
+                phases.prepare_out(sub)
+            return _run(out, arms)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished phases are kept in {out}; rerun with the same flags "
+              f"and --out {out} to resume", file=sys.stderr)  # fmt: skip
+        raise SystemExit(130) from None
+
+
+def _run(out: Path, arms: dict) -> dict:
+    results = {}
+    for k, sub in arms.items():
+        print(f"== checker trained with labels {LABELS[k]}")
         results[k] = run_experiment(sub)
     table = [
         "| labels | checker test AUROC | training violations | ... in the first 20% | "
@@ -105,4 +141,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    cli.run_main(main, PROG)

@@ -13,7 +13,9 @@ e.g. one trained on just-before labels (lookahead 1) and one on "after" labels (
 Where the shield blocks the oracle's action, a uniformly random allowed action is taken.
 For each player and judge it reports the episodes with a violation (%), the successes
 (%) and the blocked actions per step, over the same fixed-seed episodes, and writes them as
-JSON.
+JSON. The oracle plans by the constraint of the paper's scenarios (a forbidden door colour,
+lava), so ``--env`` must be one of them and each checker a window checker: anything else is
+refused by name before anything compiles.
 """
 
 from __future__ import annotations
@@ -30,7 +32,11 @@ import jaxgrid
 from agents.evaluation import violation_of
 from agents.shield import make_shield
 from checker import cli
+from checker.train import check_window_scenario
+from checker.trained import check_writable_file, checker_kind
 from jaxgrid.io import write_json
+
+PROG = "python -m experiments.shield_judges"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +55,10 @@ class JudgeConfig:
         me = type(self).__name__
         if self.env not in jaxgrid.registered_ids():
             raise ValueError(f"{me}.env: unknown environment id {self.env!r}")
+        try:  # the oracle plays, and the monitor judges, the scenarios' constraint only
+            check_window_scenario(self.env, PROG, "its oracle seeks or avoids that door and lava")
+        except ValueError as e:
+            raise ValueError(f"{me}.env {e}") from None
         if not isinstance(self.episodes, int) or self.episodes < 1:
             raise ValueError(f"{me}.episodes must be an integer >= 1, got {self.episodes!r}")
         if not 0 < self.threshold < 1:
@@ -56,8 +66,16 @@ class JudgeConfig:
         if not 0 <= self.epsilon <= 1:
             raise ValueError(f"{me}.epsilon must be in [0, 1], got {self.epsilon!r}")
         for path in self.checkers:
-            if not (Path(path) / "config.json").exists():
-                raise ValueError(f"{me}.checkers {path}: no trained checker there")
+            try:
+                kind = checker_kind(path)
+            except (OSError, ValueError) as e:
+                raise ValueError(f"{me}.checkers {path}: no trained checker there ({e})") from None
+            if kind != "window":  # its sentences are HazardRooms', not the scenarios'
+                raise ValueError(f"{me}.checkers {path}: a {kind} checker, which reads "
+                                 "HazardRooms-v0's sentences; the oracle plays the paper's "
+                                 "scenarios, whose shields are window checkers")  # fmt: skip
+        if self.out is not None:
+            check_writable_file(self.out, f"{me}.out")
 
 
 def play(env, shield, params: chk.NoisyOracleParams, key: jax.Array, episodes: int) -> dict:
@@ -126,12 +144,15 @@ def run(cfg: JudgeConfig) -> dict:
 
 
 def main(argv=None) -> dict:
-    cfg = cli.parse(JudgeConfig, argv, prog="python -m experiments.shield_judges",
-                    description=__doc__.split("\n\n")[0])  # fmt: skip
+    """Run the stress test of ``argv`` (default ``sys.argv[1:]``); returns the results.
+
+    A flag that names no scenario of the oracle, a checker that is not a window checker, or an
+    ``--out`` that cannot be written exits with status 2 before anything compiles."""
+    cfg = cli.parse(JudgeConfig, argv, prog=PROG, description=__doc__.split("\n\n")[0])
     return run(cfg)
 
 
 if __name__ == "__main__":
-    main()
+    cli.run_main(main, PROG)
 
 __all__ = ["JudgeConfig", "main", "play", "run"]
