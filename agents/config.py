@@ -164,6 +164,11 @@ class PPOConfig:
             value = getattr(self, name)
             if not isinstance(value, int | np.integer) or value <= 0:
                 raise ValueError(f"PPOConfig.{name} must be a positive integer, got {value!r}")
+        for name in ("seed", "eval_seed"):  # PRNG keys of 32-bit seeds
+            value = getattr(self, name)
+            if not isinstance(value, int | np.integer) or not 0 <= value < 2**31:
+                raise ValueError(f"PPOConfig.{name} must be an integer in [0, 2**31), got "
+                                 f"{value!r}")  # fmt: skip
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if isinstance(value, float | np.floating) and not math.isfinite(value):
@@ -235,7 +240,9 @@ class PPOConfig:
             updates = self.total_timesteps // self.batch_size
             raise ValueError(
                 f"PPOConfig.total_timesteps ({self.total_timesteps}) gives {updates} "
-                f"updates of {self.batch_size} steps, fewer than eval_every ({self.eval_every})"
+                f"updates of {self.batch_size} steps (num_envs x num_steps), fewer than one "
+                f"evaluation chunk of {self.eval_every} update(s): it must be at least "
+                f"{self.batch_size * self.eval_every}"
             )
 
     @property

@@ -203,3 +203,15 @@ def test_label_timing_ctrl_c_exits_130_and_says_how_to_resume(tmp_path, monkeypa
     assert not (out / rundir.LOCK_FILE).exists()
     assert (out / "lookahead1" / "config.json").exists()  # both arms checked, then recorded
     assert (out / "lookahead0" / "config.json").exists()
+
+
+@pytest.mark.parametrize("flags, named", [(["--seed", "-1"], "--seed"),
+                                          (["--steps", "100"], "--steps")])  # fmt: skip
+def test_the_experiments_name_flags_not_internal_settings(flags, named, tmp_path, capsys):
+    from experiments import pipeline, two_rooms
+
+    with pytest.raises(SystemExit) as e:
+        pipeline.main(two_rooms.SCENARIO, [*flags, "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and named in err
+    assert "CheckerTrainConfig" not in err and "eval_every" not in err, err
