@@ -32,6 +32,7 @@ from experiments.pipeline import (
     default_out,
     override,
     parse_args,
+    resume_command,
     run_experiment,
     scenario,
 )
@@ -105,8 +106,8 @@ def main(argv=None) -> dict:
                 phases.prepare_out(sub)
             return _run(out, arms)
     except KeyboardInterrupt:
-        print(f"\ninterrupted: finished phases are kept in {out}; rerun with the same flags "
-              f"and --out {out} to resume", file=sys.stderr)  # fmt: skip
+        print(f"\ninterrupted: finished phases are kept in {out}; resume with\n  "
+              f"{resume_command('label_timing', argv, str(out))}", file=sys.stderr)  # fmt: skip
         raise SystemExit(130) from None
 
 

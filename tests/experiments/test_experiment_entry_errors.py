@@ -199,7 +199,8 @@ def test_label_timing_ctrl_c_exits_130_and_says_how_to_resume(tmp_path, monkeypa
     out = tmp_path / "o"
     assert _exit_code(label_timing.main, ["--out", str(out), "--no-progress"]) == 130
     err = _err(capsys)
-    assert f"finished phases are kept in {out}; rerun with the same flags and --out {out}" in err
+    assert f"finished phases are kept in {out}; resume with" in err
+    assert f"python -m experiments.label_timing --no-progress --out {out}" in err
     assert not (out / rundir.LOCK_FILE).exists()
     assert (out / "lookahead1" / "config.json").exists()  # both arms checked, then recorded
     assert (out / "lookahead0" / "config.json").exists()
