@@ -16,6 +16,9 @@ constraint's sentence, mean a violation is about to happen?
 ``checker`` imports ``jaxgrid`` only (never ``agents`` or ``experiments``).
 """
 
+from jaxgrid.rundir import interruptible_if_command
+
+interruptible_if_command()  # `python -m checker...`: Ctrl-C handled before jax loads
 from checker.data import (
     CheckerDataset,
     collect,

@@ -153,11 +153,13 @@ def run_main(main: Callable[[], object], prog: str | None = None) -> NoReturn:
     and exits with 2 (``JAXGRID_TRACEBACK=1`` re-raises it, for debugging); Ctrl-C prints
     ``interrupted`` unless ``main`` said more, and exits with 130 through
     :func:`jaxgrid.rundir.exit_now`: at once (a write in progress is finished first), with no
-    interpreter teardown, which can crash while XLA still compiles or runs in another thread.
+    interpreter teardown, which can crash while XLA still compiles or runs in another thread;
+    within seconds even when Python swallowed the interrupt (:func:`~jaxgrid.rundir.interruptible`).
     """
-    from jaxgrid.rundir import LockHeld, exit_now
+    from jaxgrid.rundir import LockHeld, exit_now, interruptible
 
     prog = prog or os.path.basename(sys.argv[0])
+    interruptible()
     try:
         main()
     except KeyboardInterrupt:

@@ -444,7 +444,8 @@ def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
     if cfg.out is None:
         cfg = dataclasses.replace(cfg, out=default_out(cfg.experiment))
     try:
-        with rundir.lock(cfg.out, f"python -m experiments.{cfg.experiment}"):
+        resume = resume_command(cfg.experiment, argv, cfg.out)
+        with rundir.lock(cfg.out, f"python -m experiments.{cfg.experiment}", resume):
             return run_experiment(cfg)  # an unwritable or foreign --out fails before training
     except (ValueError, FileNotFoundError, rundir.LockHeld) as e:
         print(f"error: {e}", file=sys.stderr)

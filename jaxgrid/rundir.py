@@ -9,7 +9,8 @@
 - :func:`sha256_bytes` / :func:`sha256_file`: the digest recorded in a parameter file's JSON
   sidecar and checked when the file is loaded, so a truncated or bit-flipped file is refused
   instead of loading as different numbers.
-- :func:`writing` / :func:`exit_now`: a command interrupted by Ctrl-C leaves at once, without
+- :func:`interruptible`, :func:`writing`, :func:`exit_now`: a command interrupted by Ctrl-C
+  leaves within seconds, at any point, without
   waiting for a compile or a training chunk in another thread (and without the interpreter's
   teardown, which can crash under a running XLA computation), but never in the middle of a
   write made under :func:`writing`; the run locks it holds are released first.
@@ -24,13 +25,15 @@ import errno
 import hashlib
 import json
 import os
+import signal
 import socket
 import sys
 import threading
 from pathlib import Path
 
-__all__ = ["LOCK_FILE", "LockHeld", "RunLock", "check_free", "exit_now", "lock",
-           "sha256_bytes", "sha256_file", "writing"]
+__all__ = ["LOCK_FILE", "LockHeld", "RunLock", "check_free", "exit_now", "interruptible",
+           "interruptible_if_command", "interrupted_message", "lock", "sha256_bytes",
+           "sha256_file", "writing"]
 
 LOCK_FILE = ".lock"
 # Held while an artefact is written that a partial write would damage (a checkpoint and the
@@ -39,11 +42,73 @@ _WRITING = threading.RLock()
 _HELD: set[RunLock] = set()  # the run locks this process holds, released by exit_now
 
 
+class _Writes(threading.local):
+    depth = 0  # writing() blocks this thread is inside
+
+
+_WRITES = _Writes()
+_LEAVING = threading.Event()  # Ctrl-C came: leave as soon as the main thread's write is done
+
+
 @contextlib.contextmanager
 def writing():
-    """Hold the process's write lock for the block: :func:`exit_now` does not cut it short."""
+    """Hold the process's write lock for the block: Ctrl-C and :func:`exit_now` wait for it."""
     with _WRITING:
-        yield
+        _WRITES.depth += 1
+        try:
+            yield
+        finally:
+            _WRITES.depth -= 1
+    if _LEAVING.is_set() and not _WRITES.depth and threading.current_thread() is (
+        threading.main_thread()
+    ):
+        _leave()
+
+
+def _leave() -> None:
+    print("\n" + interrupted_message(), file=sys.stderr)
+    exit_now(130)
+
+
+def _on_ctrl_c(signum, frame) -> None:
+    if _LEAVING.is_set() and not _WRITES.depth:  # a second Ctrl-C: now
+        os._exit(130)
+    _LEAVING.set()
+    if not _WRITES.depth:  # else writing() leaves when the main thread's write is done
+        _leave()
+
+
+def interruptible() -> None:
+    """Install a command's Ctrl-C handler (main thread only): Ctrl-C ends the process with
+    status 130 through :func:`exit_now`, after the writes in progress (:func:`writing`), and
+    says which run directories hold the finished work and the commands that resume them.
+
+    No ``KeyboardInterrupt`` is raised: Python ignores one raised inside a garbage-collector
+    callback or a ``__del__`` (jax runs one at every collection), and one raised inside an
+    import can come out as another error; either way the command would go on or crash. A
+    second Ctrl-C leaves at once.
+    """
+    signal.signal(signal.SIGINT, _on_ctrl_c)
+
+
+def interruptible_if_command() -> None:
+    """:func:`interruptible` when the importing package is being run as ``python -m
+    <package>.<command>`` (``sys.argv[0]`` is ``"-m"`` while Python imports it); a library
+    import changes nothing. Called first thing by the command packages, so that Ctrl-C is
+    handled from the first second, before jax loads."""
+    if sys.argv[:1] == ["-m"] and threading.current_thread() is threading.main_thread():
+        interruptible()
+
+
+def interrupted_message() -> str:
+    """``interrupted``, and for each run directory held with a resume command, where the
+    finished work is and the command that resumes it."""
+    lines = ["interrupted"]
+    for held in sorted(_HELD, key=lambda h: str(h.directory)):
+        if held.resume:
+            lines.append(f"finished work is kept in {held.directory}; resume with\n  "
+                         f"{held.resume}")  # fmt: skip
+    return "\n".join(lines)
 
 
 def exit_now(code: int, wait_s: float = 5.0) -> None:
@@ -91,10 +156,12 @@ def _alive(pid: int) -> bool:
 class RunLock:
     """The lock of one run directory; a context manager (see :func:`lock`)."""
 
-    def __init__(self, directory: str | os.PathLike, what: str = "run"):
+    def __init__(self, directory: str | os.PathLike, what: str = "run",
+                 resume: str | None = None):  # fmt: skip
         self.directory = Path(directory)
         self.path = self.directory / LOCK_FILE
         self.what = what
+        self.resume = resume  # the command that resumes the run (named on Ctrl-C)
         self.held = False
 
     def acquire(self) -> RunLock:
@@ -182,10 +249,10 @@ def check_free(directory: str | os.PathLike) -> None:
         raise LockHeld(run._held_message(holder))
 
 
-def lock(directory: str | os.PathLike, what: str = "run") -> RunLock:
+def lock(directory: str | os.PathLike, what: str = "run", resume: str | None = None) -> RunLock:
     """Take the lock of ``directory`` (created if missing) for a process writing into it.
 
     Use as ``with lock(out, "python -m checker"): ...``: released on any exit of the block.
     Raises :class:`LockHeld` (naming the holder's pid and host) when a live process holds it.
     """
-    return RunLock(directory, what).acquire()
+    return RunLock(directory, what, resume).acquire()
