@@ -151,60 +151,6 @@ def test_examples_run(tmp_path, monkeypatch, capsys):
     assert "episodes ended" in capsys.readouterr().out
 
 
-README_SECTIONS = (
-    "### Your own level from an ASCII map",
-    "## Rendering, GIFs and videos",
-    "## Gymnasium",
-    "## Using jaxgrid in your own JAX project",
-    "### Constraint-language reference",
-    "### Adding a scenario",
-)
-
-
-def readme_blocks() -> list[tuple[str, str]]:
-    """``(heading, code)`` of every python block in the README sections this suite covers."""
-    heading, out, block = None, [], None
-    for line in (ROOT / "README.md").read_text().splitlines():
-        if block is not None:
-            if line.startswith("```"):
-                out.append((heading, "\n".join(block)))
-                block = None
-            else:
-                block.append(line)
-        elif line.startswith("```python") and heading in README_SECTIONS:
-            block = []
-        elif line.startswith("#") and not line.startswith("#!"):
-            heading = line.strip()
-    return out
-
-
-def test_readme_examples_run(tmp_path, monkeypatch, capsys):
-    """Every python block of the README sections above runs as written, in order, in one
-    namespace that starts with the Quickstart's ``import jax, jaxgrid``."""
-    import gymnasium as gym
-
-    from jaxgrid import registry
-
-    blocks = readme_blocks()
-    assert {h for h, _ in blocks} == set(README_SECTIONS)
-    monkeypatch.chdir(tmp_path)
-    before = set(jaxgrid.registered_ids())
-    namespace = {"__name__": "__readme__"}
-    exec("import jax, jaxgrid", namespace)
-    try:
-        for heading, code in blocks:
-            try:
-                exec(compile(code, f"README.md {heading}", "exec"), namespace)
-            except Exception as e:  # pragma: no cover - the message names the section
-                raise AssertionError(f"README example under {heading!r} failed: {e!r}") from e
-    finally:  # ids the examples register vanish afterwards, from jaxgrid and gymnasium
-        for env_id in set(jaxgrid.registered_ids()) - before:
-            registry.unregister(env_id)
-            gym.registry.pop(f"jaxgrid/{env_id}", None)
-    assert (tmp_path / "two_rooms.gif").stat().st_size > 0
-    assert "##" in capsys.readouterr().out  # the ANSI maps were printed
-
-
 def test_mp4_written(tmp_path):
     pytest.importorskip("imageio_ffmpeg")
     iio = pytest.importorskip("imageio.v3")
