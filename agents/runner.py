@@ -40,10 +40,22 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from agents.checkpoint import DIGESTS, CheckpointError, ResumeError
+from agents.checkpoint import kept as _kept
+from agents.checkpoint import make_manager as _checkpoint_manager
+from agents.checkpoint import record_digests as _record_digests  # noqa: F401 (re-exported)
+from agents.checkpoint import restore as _restore
+from agents.checkpoint import resume_point as _resume_point
+from agents.checkpoint import save as _save_checkpoint
+from agents.checkpoint import verified_step as _verified_step
 from agents.config import PPOConfig, check_sweep
 from agents.evaluation import summarise
 from agents.train import Learner, RunnerState, make_learner
 from jaxgrid import io
+
+__all__ = ["DIGESTS", "EARLY_FRACTION", "Cancelled", "CheckpointError", "NonFiniteError",
+           "ResumeError", "chunk_records", "early_updates", "load_agents", "precompile",
+           "run"]  # fmt: skip
 
 
 class NonFiniteError(FloatingPointError):
@@ -53,12 +65,6 @@ class NonFiniteError(FloatingPointError):
 class Cancelled(Exception):
     """:func:`run` stopped between two chunks because its ``cancel`` event was set; the
     checkpoints written so far are kept, so the run resumes where it stopped."""
-
-
-class ResumeError(ValueError):
-    """``out_dir``'s saved state cannot be resumed: a damaged or missing file, a checkpoint
-    without its records, or a run made with another checker. Its message names the file;
-    starting over (``resume=False``) is always safe, since the run is deterministic."""
 
 
 def _mesh(num_envs: int, multi_host: bool = False) -> Mesh | None:
@@ -192,10 +198,12 @@ def run(
             seeds) go; ``None`` keeps nothing.
         checkpoint_every: save every this many chunks of ``config.eval_every`` updates
             (0: never). Saved only after the chunk's loss and parameters are checked finite.
-        resume: continue from the newest checkpoint in ``out_dir`` if there is one (a
-            ``ValueError`` if it was made with another config or other seeds, a
-            :class:`ResumeError` if it was made with another checker or its files are
-            damaged); ``False`` deletes its checkpoints and starts over.
+        resume: continue from the newest checkpoint in ``out_dir`` whose files and logged
+            records match their digests (:mod:`agents.checkpoint`; newer ones are deleted
+            with a message and their chunks redone); a ``ValueError`` if it was made with
+            another config or other seeds, a :class:`ResumeError` if it was made with
+            another checker or no checkpoint matches; ``False`` deletes its checkpoints and
+            starts over.
         multi_host: split the env batch over the devices of every process that joined
             ``jax.distributed`` (module docstring); each process calls ``run`` alike.
         final_episodes: if > 0, a final evaluation over this many fixed-seed episodes.
@@ -219,6 +227,8 @@ def run(
             with another configuration or other seeds.
         ResumeError: ``out_dir`` holds a checkpoint that cannot be resumed (see ``resume``).
         Cancelled: ``cancel`` was set.
+        CheckpointError: a checkpoint could not be saved; the message names the last good
+            one, which is kept.
         NonFiniteError: a chunk produced a non-finite loss or parameters; the message names
             the update and the last good checkpoint's directory, or says that none was
             written yet; that checkpoint is left untouched.
@@ -261,9 +271,8 @@ def run(
         if manager is not None and manager.latest_step() is not None:
             if resume:
                 _check_run_info(out, config, seeds, checker, sweep)
-                done_chunks = _verified_step(manager, out)
+                done_chunks, records = _resume_point(manager, out, idents, ident)
                 runner = _restore(manager, done_chunks, abstract, shardings)
-                records = _read_records(out / "metrics.jsonl", done_chunks, idents, ident)
                 for r in records:
                     i = idents.index(ident(r))
                     totals[i] = max(totals[i], r["train/cum_violations"])
@@ -306,11 +315,7 @@ def run(
                 io.append_jsonl(out / "metrics.jsonl", new)
             last = c + 1 == config.num_chunks
             if manager is not None and ((c + 1) % checkpoint_every == 0 or last):
-                if not manager.save(c + 1, args=_save_args(runner)):
-                    raise RuntimeError(f"orbax did not save checkpoint {c + 1} in {out}")
-                manager.wait_until_finished()
-                if primary:
-                    _record_digests(manager, out)
+                _save_checkpoint(manager, c + 1, runner, out, records, primary)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(
@@ -473,16 +478,6 @@ def _finished(out: Path, config: PPOConfig) -> bool:
         return False
 
 
-def _kept(manager, out: Path | None) -> str:
-    """Where the last good checkpoint is, only if one was really written."""
-    if manager is None:
-        return "no checkpoint was requested"
-    step = manager.latest_step()
-    if step is None:
-        return f"no checkpoint was written yet (none in {out / 'checkpoints'})"
-    return f"the last good checkpoint (chunk {step}) is kept in {out / 'checkpoints'}"
-
-
 def _checker_sha256(checker) -> str | None:
     """Identifies the checker's parameters, so that a resume with another checker is refused."""
     if checker is None:
@@ -601,117 +596,6 @@ def _progress(total, initial, enabled, desc):
     return tqdm(total=total, initial=initial, desc=desc, unit="chunk", dynamic_ncols=True)
 
 
-def _checkpoint_manager(path: Path):
-    import orbax.checkpoint as ocp
-
-    options = ocp.CheckpointManagerOptions(max_to_keep=2, create=True)
-    return ocp.CheckpointManager(path.absolute(), options=options)
-
-
-def _save_args(runner):
-    import orbax.checkpoint as ocp
-
-    return ocp.args.StandardSave(runner)
-
-
-# ``checkpoints.json`` beside ``checkpoints/``: {step: {file: sha256}} of every kept step, so
-# that a truncated or changed checkpoint file is found before orbax restores other numbers.
-DIGESTS = "checkpoints.json"
-
-
-def _step_digests(manager, step: int) -> dict[str, str]:
-    from jaxgrid.rundir import sha256_file
-
-    root = Path(manager.directory) / str(step)
-    return {p.relative_to(root).as_posix(): sha256_file(p)
-            for p in sorted(root.rglob("*")) if p.is_file()}  # fmt: skip
-
-
-def _record_digests(manager, out: Path) -> None:
-    path = out / DIGESTS
-    try:
-        saved = io.read_json(path) if path.exists() else {}
-    except ValueError:
-        saved = {}  # rewritten below from the files themselves
-    kept = {str(s): saved.get(str(s)) for s in manager.all_steps()}
-    latest = str(manager.latest_step())
-    kept[latest] = _step_digests(manager, int(latest))
-    io.write_json(path, {k: v for k, v in kept.items() if v is not None})
-
-
-def _verified_step(manager, out: Path, delete: bool = True) -> int:
-    """The newest checkpoint whose files match ``checkpoints.json``; newer ones that do not
-    (damaged, or written by a run killed before recording them) are deleted (if ``delete``),
-    with a message. :class:`ResumeError` if none matches."""
-    import sys
-
-    path = out / DIGESTS
-    try:
-        recorded = io.read_json(path)
-    except (FileNotFoundError, ValueError) as e:
-        raise ResumeError(f"{path}: {e}; the checkpoints in {manager.directory} cannot be "
-                          "verified: delete them to start over") from None  # fmt: skip
-    for step in sorted(manager.all_steps(), reverse=True):
-        if recorded.get(str(step)) == _step_digests(manager, step):
-            return int(step)
-        print(f"{Path(manager.directory) / str(step)}: damaged or unverified checkpoint (its "
-              f"files differ from {path}); "
-              f"{'deleted, resuming from' if delete else 'reading'} an older one",
-              file=sys.stderr)  # fmt: skip
-        if delete:
-            manager.delete(step)
-    raise ResumeError(f"{manager.directory}: no checkpoint matches {path}; delete them to "
-                      "start over")
-
-
-def _restore(manager, step, abstract, shardings):
-    """The runner state of checkpoint ``step``. A checkpoint written before a
-    :class:`RunnerState` field with a default existed is restored without it, and the field
-    starts from zeros (such fields are added with zero as their initial value, and are read
-    only by options that the configuration check proves off for such a run)."""
-    import sys
-
-    import orbax.checkpoint as ocp
-
-    if shardings is not None:
-        target = jax.tree.map(
-            lambda a, s: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=s), abstract, shardings
-        )
-    else:
-        target = abstract
-    try:
-        return manager.restore(step, args=ocp.args.StandardRestore(target))
-    except Exception as e:  # orbax's and tensorstore's errors share no base class
-        error = e
-    # Fields are added last, with a default: try without the newest one, then two, ...
-    fields = dataclasses.fields(target)
-    defaulted = [f.name for f in fields
-                 if f.default_factory is not dataclasses.MISSING
-                 and jax.tree.leaves(getattr(target, f.name))]  # fmt: skip
-    restored = None
-    for k in range(1, len(defaulted) + 1):
-        added = defaulted[-k:]
-        older = {f.name: getattr(target, f.name) for f in fields if f.name not in added}
-        try:
-            restored = manager.restore(step, args=ocp.args.StandardRestore(older))
-            break
-        except Exception:
-            continue
-    if restored is None:
-        raise ResumeError(f"{manager.directory}: checkpoint {step} cannot be restored "
-                          f"({type(error).__name__}: {error}); delete it to start over"
-                          ) from error  # fmt: skip
-
-    def zeros(a):
-        z = jnp.zeros(a.shape, a.dtype)
-        return z if getattr(a, "sharding", None) is None else jax.device_put(z, a.sharding)
-
-    print(f"{manager.directory}: checkpoint {step} predates {', '.join(added)}; "
-          "starting from zeros", file=sys.stderr)  # fmt: skip
-    filled = {n: jax.tree.map(zeros, getattr(target, n)) for n in added}
-    return type(target)(**restored, **filled)
-
-
 def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
     """The trained agents of a directory that :func:`run` wrote, from its newest verified
     checkpoint, without training or compiling anything (nothing in the directory changes).
@@ -755,29 +639,3 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
     return {"config": config, "learner": learner, "seeds": seeds, "hparams": hparams,
             "params": state.params, "chunks": chunks,
             "complete": chunks == config.num_chunks}  # fmt: skip
-
-
-def _read_records(path: Path, chunks: int, seeds: list[tuple], ident=_ident) -> list[dict]:
-    """The records of the first ``chunks`` chunks of every seed; all of them must be there
-    (:class:`ResumeError` naming the file otherwise: the checkpoint outran its records)."""
-    try:
-        records = [r for r in io.read_jsonl(path) if r["chunk"] < chunks]
-    except FileNotFoundError:
-        records = []
-    except (ValueError, TypeError, KeyError) as e:
-        raise ResumeError(f"{path}: damaged ({e}); delete it and the checkpoints beside it "
-                          "to start over") from None  # fmt: skip
-    have = set()
-    for r in records:
-        try:
-            have.add((ident(r), r["chunk"]))
-        except KeyError:  # a record of another agent layout: not one of ours
-            pass
-    missing = [(s, c) for s in seeds for c in range(chunks) if (s, c) not in have]
-    if missing:
-        raise ResumeError(
-            f"{path}: records of {len(missing)} (seed, chunk) pairs, e.g. {missing[0]}, are "
-            f"missing (truncated or deleted) though the checkpoint holds {chunks} chunks; "
-            "delete it and the checkpoints beside it to start over"
-        )
-    return records
