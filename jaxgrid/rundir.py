@@ -42,27 +42,14 @@ _WRITING = threading.RLock()
 _HELD: set[RunLock] = set()  # the run locks this process holds, released by exit_now
 
 
-class _Writes(threading.local):
-    depth = 0  # writing() blocks this thread is inside
-
-
-_WRITES = _Writes()
-_LEAVING = threading.Event()  # Ctrl-C came: leave as soon as the main thread's write is done
+_WATCHING = threading.Event()  # interruptible() has run
 
 
 @contextlib.contextmanager
 def writing():
     """Hold the process's write lock for the block: Ctrl-C and :func:`exit_now` wait for it."""
     with _WRITING:
-        _WRITES.depth += 1
-        try:
-            yield
-        finally:
-            _WRITES.depth -= 1
-    if _LEAVING.is_set() and not _WRITES.depth and threading.current_thread() is (
-        threading.main_thread()
-    ):
-        _leave()
+        yield
 
 
 def _leave() -> None:
@@ -70,25 +57,30 @@ def _leave() -> None:
     exit_now(130)
 
 
-def _on_ctrl_c(signum, frame) -> None:
-    if _LEAVING.is_set() and not _WRITES.depth:  # a second Ctrl-C: now
-        os._exit(130)
-    _LEAVING.set()
-    if not _WRITES.depth:  # else writing() leaves when the main thread's write is done
-        _leave()
+def _watch() -> None:
+    signal.sigwait({signal.SIGINT})
+    threading.Thread(target=_leave, name="leaving", daemon=True).start()
+    signal.sigwait({signal.SIGINT})  # a second Ctrl-C while writes finish: leave now
+    os._exit(130)
 
 
 def interruptible() -> None:
-    """Install a command's Ctrl-C handler (main thread only): Ctrl-C ends the process with
-    status 130 through :func:`exit_now`, after the writes in progress (:func:`writing`), and
-    says which run directories hold the finished work and the commands that resume them.
+    """Make Ctrl-C end this process (a command's) with status 130 through :func:`exit_now`,
+    after the writes in progress (:func:`writing`), saying which run directories hold the
+    finished work and the commands that resume them. A second Ctrl-C leaves at once.
 
-    No ``KeyboardInterrupt`` is raised: Python ignores one raised inside a garbage-collector
-    callback or a ``__del__`` (jax runs one at every collection), and one raised inside an
-    import can come out as another error; either way the command would go on or crash. A
-    second Ctrl-C leaves at once.
+    SIGINT is blocked in every thread (threads started later inherit the mask) and taken by a
+    watcher thread with ``sigwait``, so it acts even while the main thread sits in a long
+    compile or computation, where a Python signal handler would wait for it to return. No
+    ``KeyboardInterrupt`` is raised: Python ignores one raised inside a garbage-collector
+    callback (jax runs one at every collection), and one raised inside an import can come out
+    as another error. Call it from the main thread before other threads start.
     """
-    signal.signal(signal.SIGINT, _on_ctrl_c)
+    if _WATCHING.is_set():
+        return
+    _WATCHING.set()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    threading.Thread(target=_watch, name="ctrl-c", daemon=True).start()
 
 
 def interruptible_if_command() -> None:
