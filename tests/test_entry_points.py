@@ -8,14 +8,11 @@ further; this one covers every command, so it is slow (``-m slow``).
 
 from __future__ import annotations
 
-import os
-import signal
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
+from helpers import commands
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("benchmarks", "checker", "experiments")
@@ -42,24 +39,10 @@ def test_every_command_is_found():
 @pytest.mark.slow
 @pytest.mark.parametrize("command", COMMANDS)
 def test_bare_command_starts_then_stops_cleanly(command, tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    default_sigint = lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)  # noqa: E731
-    proc = subprocess.Popen([sys.executable, "-m", command], cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            preexec_fn=default_sigint)  # fmt: skip
-    try:
-        time.sleep(15)  # imports done, work (or its refusal) begun
-        early = proc.poll()
-        if early is None:
-            proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    err = err.decode(errors="replace")
+    proc = commands.start(command, tmp_path, stdout=subprocess.PIPE)
+    early, code, err = commands.interrupt(proc, 15)  # imports done, work begun (or refused)
     assert "Traceback" not in err and "Segmentation" not in err, err[-3000:]
     if early is not None:  # it needs an input (a flag, an optional peer) and says so
         assert early == 2 and ("error" in err.lower() or "required" in err), (early, err[-2000:])
     else:
-        assert proc.returncode == 130 and "interrupted" in err, (proc.returncode, err[-2000:])
+        assert code == 130 and "interrupted" in err, (code, err[-2000:])

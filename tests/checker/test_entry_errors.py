@@ -6,7 +6,6 @@ is locked and refused unless new, empty or (with ``--overwrite``) a checker dire
 
 from __future__ import annotations
 
-import json
 import os
 import queue
 import signal
@@ -16,7 +15,7 @@ import threading
 import time
 
 import pytest
-from helpers.cli_help import help_entries, squeezed
+from helpers.cli_help import exit_code, fake_checker, help_entries, squeezed, stderr_text
 
 from checker import __main__ as checker_main
 from checker import memory as MC
@@ -24,22 +23,8 @@ from checker.trained import CHECKER_FILES, check_vocab
 from jaxgrid import rundir
 
 
-def _err(capsys) -> str:
-    """stderr of the test so far, without tyro's box drawing, whitespace collapsed."""
-    return " ".join(capsys.readouterr().err.replace("│", " ").split())
-
-
-def _exit_code(main, argv) -> int:
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    return e.value.code
-
-
-def _fake_checker(directory, **meta) -> None:
-    """A directory that looks like a saved checker to whoever reads only its config.json."""
-    directory.mkdir(parents=True, exist_ok=True)
-    (directory / "config.json").write_text(json.dumps({"env_id": "TwoRooms-v0", **meta}))
-    (directory / "params.msgpack").write_bytes(b"old parameters")
+def fake_checker_here(directory, **meta) -> str:
+    return fake_checker(directory, env_id="TwoRooms-v0", **meta)
 
 
 # ---------------------------------------------------------------------- python -m checker
@@ -51,8 +36,8 @@ def _fake_checker(directory, **meta) -> None:
 def test_checker_refuses_an_env_without_the_scenarios_constraint(env, instead, tmp_path, capsys,
                                                                  compiles):  # fmt: skip
     out = tmp_path / "ck"
-    assert _exit_code(checker_main.main, ["--out", str(out), "--env", env]) == 2
-    err = _err(capsys)
+    assert exit_code(checker_main.main, ["--out", str(out), "--env", env]) == 2
+    err = stderr_text(capsys)
     assert f"--env {env}: python -m checker needs one of the paper's scenarios" in err
     assert "ThreeRoomsKey-v0, TwoRooms-v0, TwoRoomsLava-v0" in err and instead in err
     assert not out.exists() and not compiles
@@ -67,13 +52,13 @@ def test_checker_refuses_an_env_without_the_scenarios_constraint(env, instead, t
 )  # fmt: skip
 def test_checker_refuses_integers_out_of_range(flags, message, tmp_path, capsys, compiles):
     out = tmp_path / "ck"
-    assert _exit_code(checker_main.main, ["--out", str(out), *flags]) == 2
-    assert message in _err(capsys)
+    assert exit_code(checker_main.main, ["--out", str(out), *flags]) == 2
+    assert message in stderr_text(capsys)
     assert not out.exists() and not compiles
 
 
 def test_checker_help_says_an_empty_out_is_accepted(capsys):
-    assert _exit_code(checker_main.main, ["--help"]) == 0
+    assert exit_code(checker_main.main, ["--help"]) == 0
     text = help_entries(capsys.readouterr().out)["--out"]
     assert "new, empty, or (with --overwrite) an earlier checker's" in text, text
 
@@ -87,7 +72,7 @@ def test_a_checker_config_without_vocabulary_is_named_not_none():
 
 # --------------------------------------------------------------- python -m checker.memory
 def test_memory_help_lists_every_flag_with_its_default(capsys):
-    assert _exit_code(MC.main, ["--help"]) == 0
+    assert exit_code(MC.main, ["--help"]) == 0
     entries = help_entries(capsys.readouterr().out)
     flags = {"--envs", "--steps", "--updates", "--batch-streams", "--guided", "--label",
              "--seed", "--late", "--memory", "--actions", "--json", "--out", "--overwrite"}
@@ -106,8 +91,8 @@ def test_memory_help_lists_every_flag_with_its_default(capsys):
 )  # fmt: skip
 def test_memory_refuses_integers_out_of_range(flags, message, tmp_path, capsys, compiles):
     out = tmp_path / "m"
-    assert _exit_code(MC.main, ["--out", str(out), *flags]) == 2
-    assert message in _err(capsys)
+    assert exit_code(MC.main, ["--out", str(out), *flags]) == 2
+    assert message in stderr_text(capsys)
     assert not out.exists() and not compiles
 
 
@@ -115,7 +100,7 @@ def test_memory_refuses_a_checker_directory_unless_overwrite(tmp_path, monkeypat
     """A window checker's directory with its report: refused as it is; with --overwrite, its
     files are gone before any work, so no old report is left beside the new parameters."""
     out = tmp_path / "ck"
-    _fake_checker(out, lookahead=1)
+    fake_checker_here(out, lookahead=1)
     (out / "report.json").write_text("{}")
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     monkeypatch.setattr(MC, "run", lambda **kw: pytest.fail("work started"))
@@ -149,8 +134,8 @@ def test_memory_checks_out_and_json_before_any_work(tmp_path, monkeypatch, capsy
     for flags, message in ((["--out", str(a_file)], "--out"),
                            (["--json", str(tmp_path)], "is a directory, not a file"),
                            (["--json", str(a_file / "r.json")], "is a file, not a directory")):
-        assert _exit_code(MC.main, flags) == 2
-        assert message in _err(capsys)
+        assert exit_code(MC.main, flags) == 2
+        assert message in stderr_text(capsys)
     with rundir.lock(tmp_path / "held", "holder-under-test"):
         with pytest.raises(rundir.LockHeld, match="holder-under-test"):
             MC.main(["--out", str(tmp_path / "held")])

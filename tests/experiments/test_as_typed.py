@@ -10,20 +10,18 @@ finished chunk under ``-m slow``.
 
 from __future__ import annotations
 
-import os
 import re
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import pytest
+from helpers import commands
 
 # The child resets SIGINT between fork and exec (one signal call, no lock taken).
 pytestmark = pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning")
-ROOT = Path(__file__).resolve().parents[2]
 # A progress bar of a phase that trains: "a. behaviour agent:  0%| 0/18" (the window
 # checker's experiments) or the memory checker's streams and fit (HazardRooms).
 STARTED = re.compile(r"(a\. behaviour agent|memory checker|streams)[^\n\r]*\|")
@@ -55,14 +53,7 @@ class Output:
 
 
 def _start_then_interrupt(module: str, cwd: Path, until: re.Pattern, timeout: float) -> str:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get(
-        "PYTHONPATH", "")]).rstrip(os.pathsep)}  # fmt: skip
-    # SIGINT as a terminal delivers it: a child of a non-interactive shell may inherit it
-    # ignored, and Python then never raises KeyboardInterrupt
-    default_sigint = lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)  # noqa: E731
-    proc = subprocess.Popen([sys.executable, "-m", f"experiments.{module}"], cwd=cwd, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            preexec_fn=default_sigint)  # fmt: skip
+    proc = commands.start(f"experiments.{module}", cwd)
     out = Output(proc)
     try:
         seen = out.wait_for(until, timeout)
@@ -114,20 +105,7 @@ def test_bare_experiment_trains_then_stops_cleanly(module, tmp_path):
 def test_ctrl_c_while_the_command_still_imports_leaves_cleanly(delay, tmp_path):
     """Before jax has loaded, Python can swallow a KeyboardInterrupt (in a garbage-collector
     callback) or turn it into an ImportError; the command must still leave at once."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get(
-        "PYTHONPATH", "")]).rstrip(os.pathsep)}  # fmt: skip
-    default_sigint = lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)  # noqa: E731
-    proc = subprocess.Popen([sys.executable, "-m", "experiments.two_rooms"], cwd=tmp_path,
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            preexec_fn=default_sigint)  # fmt: skip
-    time.sleep(delay)
-    proc.send_signal(signal.SIGINT)
-    try:
-        _, err = proc.communicate(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    err = err.decode(errors="replace")
-    assert proc.returncode == 130, err[-2000:]
+    proc = commands.start("experiments.two_rooms", tmp_path)
+    _, code, err = commands.interrupt(proc, delay)
+    assert code == 130, err[-2000:]
     assert "Traceback" not in err and "interrupted" in err, err[-2000:]

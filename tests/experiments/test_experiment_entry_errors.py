@@ -10,6 +10,7 @@ import subprocess
 import sys
 
 import pytest
+from helpers.cli_help import exit_code, fake_checker, stderr_text
 
 from experiments import breakdown, false_alarms, label_timing, shield_judges
 from jaxgrid import rundir
@@ -17,28 +18,16 @@ from jaxgrid import rundir
 SCENARIOS = "ThreeRoomsKey-v0, TwoRooms-v0, TwoRoomsLava-v0"
 
 
-def _err(capsys) -> str:
-    return " ".join(capsys.readouterr().err.replace("│", " ").split())
 
 
-def _exit_code(main, argv) -> int:
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    return e.value.code
 
 
-def _fake_checker(directory, **meta):
-    """What a command that reads only ``config.json`` takes for a saved checker."""
-    directory.mkdir(parents=True, exist_ok=True)
-    (directory / "config.json").write_text(json.dumps(meta))
-    (directory / "params.msgpack").write_bytes(b"")
-    return str(directory)
 
 
 @pytest.mark.parametrize("main", [shield_judges.main, false_alarms.main, breakdown.main,
                                   label_timing.main])  # fmt: skip
 def test_help_exits_0(main, capsys):
-    assert _exit_code(main, ["--help"]) == 0
+    assert exit_code(main, ["--help"]) == 0
     assert "--out" in capsys.readouterr().out
 
 
@@ -49,29 +38,29 @@ def test_help_exits_0(main, capsys):
      ("MiniGrid-DoorKey-8x8-v0", "has no constraint, so there is no violation to measure")],
 )  # fmt: skip
 def test_shield_judges_refuses_an_env_it_cannot_measure(env, instead, capsys, compiles):
-    assert _exit_code(shield_judges.main, ["--env", env]) == 2
-    err = _err(capsys)
+    assert exit_code(shield_judges.main, ["--env", env]) == 2
+    err = stderr_text(capsys)
     assert f"--env {env}: python -m experiments.shield_judges needs one of the paper's" in err
     assert SCENARIOS in err and instead in err and not compiles
 
 
 def test_shield_judges_refuses_a_memory_checker(tmp_path, capsys, compiles):
-    path = _fake_checker(tmp_path / "m", kind="memory")
-    assert _exit_code(shield_judges.main, ["--checkers", path]) == 2
-    assert f"--checkers {path}: a memory checker" in _err(capsys) and not compiles
+    path = fake_checker(tmp_path / "m", kind="memory")
+    assert exit_code(shield_judges.main, ["--checkers", path]) == 2
+    assert f"--checkers {path}: a memory checker" in stderr_text(capsys) and not compiles
 
 
 def test_false_alarms_refuses_an_env_or_checker_it_cannot_score(tmp_path, capsys, compiles):
-    window = _fake_checker(tmp_path / "w", lookahead=1)
-    memory = _fake_checker(tmp_path / "m", kind="memory")
+    window = fake_checker(tmp_path / "w", lookahead=1)
+    memory = fake_checker(tmp_path / "m", kind="memory")
     for argv, message in (
         (["--checker", window, "--env-id", "HazardRooms-v0"],
          f"--env-id HazardRooms-v0: python -m experiments.false_alarms needs one of the paper's "
          f"scenarios ({SCENARIOS})"),
         (["--checker", memory], f"--checker {memory}: a memory checker"),
     ):  # fmt: skip
-        assert _exit_code(false_alarms.main, argv) == 2
-        assert message in _err(capsys)
+        assert exit_code(false_alarms.main, argv) == 2
+        assert message in stderr_text(capsys)
     assert not compiles
 
 
@@ -83,13 +72,13 @@ def test_an_unwritable_out_file_is_refused_before_any_work(command, tmp_path, ca
     run.mkdir()
     (run / "run.json").write_text("{}")
     given = {"shield_judges": [], "breakdown": ["--run", str(run)],
-             "false_alarms": ["--checker", _fake_checker(tmp_path / "w", lookahead=1)]}
+             "false_alarms": ["--checker", fake_checker(tmp_path / "w", lookahead=1)]}
     main = {"shield_judges": shield_judges.main, "false_alarms": false_alarms.main,
             "breakdown": breakdown.main}[command]  # fmt: skip
     for out, message in ((a_file / "r.json", "is a file, not a directory"),
                          (tmp_path, "is a directory, not a file")):  # fmt: skip
-        assert _exit_code(main, [*given[command], "--out", str(out)]) == 2
-        assert f"--out {out}" in (err := _err(capsys)) and message in err, err
+        assert exit_code(main, [*given[command], "--out", str(out)]) == 2
+        assert f"--out {out}" in (err := stderr_text(capsys)) and message in err, err
     assert a_file.read_text() == "keep" and not compiles
 
 
@@ -97,7 +86,7 @@ def test_an_unwritable_out_file_is_refused_before_any_work(command, tmp_path, ca
 def test_an_error_past_the_flags_is_one_line_and_status_2(command, tmp_path):
     """A checker directory whose config.json is not a checker's, and a damaged run.json, found
     when the command loads them: one ``error:`` line naming them, no traceback."""
-    fake = _fake_checker(tmp_path / "w", lookahead=1)  # no vocabulary recorded
+    fake = fake_checker(tmp_path / "w", lookahead=1)  # no vocabulary recorded
     run = tmp_path / "run"
     run.mkdir()
     (run / "run.json").write_text("{}")
@@ -197,8 +186,8 @@ def test_label_timing_ctrl_c_exits_130_and_says_how_to_resume(tmp_path, monkeypa
 
     monkeypatch.setattr(label_timing, "run_experiment", interrupted)
     out = tmp_path / "o"
-    assert _exit_code(label_timing.main, ["--out", str(out), "--no-progress"]) == 130
-    err = _err(capsys)
+    assert exit_code(label_timing.main, ["--out", str(out), "--no-progress"]) == 130
+    err = stderr_text(capsys)
     assert f"finished phases are kept in {out}; resume with" in err
     assert f"python -m experiments.label_timing --no-progress --out {out}" in err
     assert not (out / rundir.LOCK_FILE).exists()

@@ -34,3 +34,27 @@ def help_entries(text: str) -> dict[str, str]:
 def squeezed(text: str) -> str:
     """``text`` without whitespace (the layout may wrap a default after a comma)."""
     return "".join(text.split())
+
+
+def stderr_text(capsys) -> str:
+    """stderr of the test so far, without tyro's box drawing, whitespace collapsed."""
+    return " ".join(capsys.readouterr().err.replace("│", " ").split())
+
+
+def exit_code(main, argv) -> int:
+    """The status ``main(argv)`` exits with (it must raise ``SystemExit``)."""
+    import pytest
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    return e.value.code
+
+
+def fake_checker(directory, **meta) -> str:
+    """A directory that a command reading only ``config.json`` takes for a saved checker."""
+    import json
+
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "config.json").write_text(json.dumps(meta))
+    (directory / "params.msgpack").write_bytes(b"old parameters")
+    return str(directory)
