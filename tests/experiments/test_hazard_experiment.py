@@ -207,7 +207,7 @@ def test_the_shield_trains_with_its_own_checker_and_the_others_with_the_experime
     class Stop(Exception):
         pass
 
-    monkeypatch.setattr(pipeline, "_make_checker", lambda cfg, out, keep, cancel: (
+    monkeypatch.setattr(pipeline, "_make_checker", lambda cfg, out, keep, cancel, reused: (
         "experiment's", {"test": {}}))  # fmt: skip
     monkeypatch.setattr(memory_phase, "train_memory_checker", lambda cfg, out, name, guided: (
         made.update(name=name, guided=guided) or "shield's", {"test": {}, "guided": guided}))
