@@ -101,7 +101,7 @@ def main(argv=None) -> dict:
                                       modes=("checker",), checker_train=labels,
                                       out=str(out / f"lookahead{k}"))  # fmt: skip
     try:
-        with rundir.lock(out, PROG):
+        with rundir.lock(out, PROG, resume_command("label_timing", argv, str(out))):
             for sub in arms.values():  # both arms' directories, before either trains
                 phases.prepare_out(sub)
             return _run(out, arms)
