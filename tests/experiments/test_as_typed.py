@@ -88,9 +88,11 @@ def test_readme_line_1_trains_then_stops_cleanly(tmp_path):
     _check_resume_hint("two_rooms", text, tmp_path)
 
 
-# HazardRooms collects its memory checker's streams (a long compile) before its first bar:
-# under -m slow only, with the chunk test below.
-@pytest.mark.parametrize("module", ["two_rooms_lava", "three_rooms_key",
+# ThreeRoomsKey starts as TwoRoomsLava does (the same phases); HazardRooms collects its
+# memory checker's streams (a long compile) before its first bar: both under -m slow, with
+# the chunk tests below.
+@pytest.mark.parametrize("module", ["two_rooms_lava",
+                                    pytest.param("three_rooms_key", marks=pytest.mark.slow),
                                     pytest.param("hazard_rooms", marks=pytest.mark.slow)])
 def test_bare_experiment_starts_training_then_stops_cleanly(module, tmp_path):
     text = _start_then_interrupt(module, tmp_path, STARTED, timeout=120)
