@@ -150,11 +150,11 @@ def run_main(main: Callable[[], object], prog: str | None = None) -> NoReturn:
     """Run ``main()`` as a command and end the process.
 
     ``SystemExit`` keeps its status; a :data:`USER_ERRORS` exception prints ``error: ...``
-    and exits with 2 (``JAXGRID_TRACEBACK=1`` re-raises it, for debugging); Ctrl-C prints
-    ``interrupted`` unless ``main`` said more, and exits with 130 through
-    :func:`jaxgrid.rundir.exit_now`: at once (a write in progress is finished first), with no
-    interpreter teardown, which can crash while XLA still compiles or runs in another thread;
-    within seconds even when Python swallowed the interrupt (:func:`~jaxgrid.rundir.interruptible`).
+    and exits with 2 (``JAXGRID_TRACEBACK=1`` re-raises it, for debugging). Ctrl-C is taken by
+    :func:`jaxgrid.rundir.interruptible` (exit 130 within seconds, at any point); a
+    ``KeyboardInterrupt`` that ``main`` raises itself, or its ``SystemExit(130)``, also leaves
+    through :func:`jaxgrid.rundir.exit_now`, with no interpreter teardown, which can crash
+    while XLA still compiles or runs in another thread.
     """
     from jaxgrid.rundir import LockHeld, exit_now, interruptible
 
