@@ -7,14 +7,18 @@
   number of runs).
 - :func:`probability_of_improvement`: ``P(X < Y)`` for a lower-is-better metric of two
   methods, counting ties as one half, with its bootstrap interval.
+- :func:`mean_ci` and :func:`t_quantile`: the mean and its Student-t confidence interval, the
+  report's fallback where a method has per-seed values but no IQM summary.
 
-Everything is NumPy (and scipy's trimmed mean), with a fixed generator seed, so a report is
-the same on every rerun.
+Everything is NumPy (and scipy's trimmed mean and t quantiles), with a fixed generator seed,
+so a report is the same on every rerun.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -117,3 +121,46 @@ def summary(values: Sequence[float]) -> dict:
     """``{"iqm", "lo", "hi", "per_seed"}`` of one method's per-seed values (JSON-ready)."""
     point, lo, hi = bootstrap_ci(values)
     return {"iqm": point, "lo": lo, "hi": hi, "per_seed": [float(v) for v in values]}
+
+
+def t_quantile(p: float, df: float) -> float:
+    """Quantile (inverse CDF) of Student's t distribution: ``P(T <= t_quantile(p, df)) = p``.
+
+    Any real ``df > 0`` works, and ``df = inf`` gives the normal quantile. E.g.
+    ``t_quantile(0.975, 4)`` = 2.7764, ``t_quantile(0.975, inf)`` = 1.9600. Bad ``p`` or ``df``
+    raise ``ValueError`` naming the argument.
+    """
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"p: expected a probability in (0, 1), got {p!r}")
+    if not df > 0:
+        raise ValueError(f"df: expected df > 0, got {df!r}")
+    from scipy import stats
+
+    return float(stats.t.ppf(p, df))
+
+
+def mean_ci(values: Any, axis: int = 0, confidence: float = 0.95) -> tuple[Any, Any, Any]:
+    """Mean and Student-t confidence interval of ``values`` along ``axis`` (e.g. over seeds).
+
+    Returns ``(mean, lo, hi)`` with ``lo/hi = mean -/+ t_{(1+c)/2, n-1} * s / sqrt(n)``, ``s`` the
+    sample standard deviation (ddof=1). With a single value along ``axis`` the interval is
+    degenerate: ``lo = hi = mean``. Results are Python floats for a 1-D input, arrays otherwise.
+    """
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence: expected a value in (0, 1), got {confidence!r}")
+    x = np.asarray(values, dtype=np.float64)
+    if x.ndim == 0:
+        raise ValueError("values: expected at least one dimension (the samples)")
+    n = x.shape[axis]
+    if n == 0:
+        raise ValueError(f"values: no samples along axis {axis}")
+    mean = x.mean(axis=axis)
+    if n == 1:
+        half = np.zeros_like(mean)
+    else:
+        sem = x.std(axis=axis, ddof=1) / math.sqrt(n)
+        half = t_quantile(0.5 + confidence / 2.0, n - 1) * sem
+    lo, hi = mean - half, mean + half
+    if np.ndim(mean) == 0:
+        return float(mean), float(lo), float(hi)
+    return mean, lo, hi

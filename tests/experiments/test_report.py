@@ -15,14 +15,13 @@ import pytest
 from experiments import report
 from experiments.report import (
     MODES,
-    mean_ci,
     plot_curves,
     results_table,
     summarise,
-    t_quantile,
     validate_results,
     write_report,
 )
+from experiments.stats import mean_ci, t_quantile
 
 METRICS = {"accuracy": 0.97, "precision": 0.9, "recall": 0.88, "f1": 0.89, "auroc": 0.99,
            "ece": 0.02}  # fmt: skip

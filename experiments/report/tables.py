@@ -1,0 +1,236 @@
+"""The Markdown report and the console summary of an experiment's results.
+
+- :func:`results_table`: the methods, their comparisons and the checker's metrics as
+  Markdown tables.
+- :func:`write_report`: ``results.json`` and ``results.md``, validated first
+  (:func:`experiments.report.schema.validate_results`), each written atomically.
+- :func:`summarise`: the end-of-run console summary.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from experiments.report.schema import (
+    CHECKER_METRICS,
+    CHECKER_SPLITS,
+    MODE_LABELS,
+    ordered_modes,
+    validate_results,
+)
+from experiments.stats import mean_ci
+from jaxgrid.io import atomic_write, write_json
+
+__all__ = ["ReportPaths", "results_table", "summarise", "write_report"]
+
+
+def _cell(entry: Mapping, key: str, scale: float, digits: int, final: str = "final") -> str:
+    """``IQM [lo, hi]`` (95% bootstrap) from the entry's ``iqm`` summaries when present, else
+    ``mean ± t half-width`` from ``final_per_seed`` (>= 2 seeds), else the pooled final."""
+    name = key if final == "final" else f"unshielded_{key}"
+    summary = (entry.get("iqm") or {}).get(name)
+    if summary is not None:
+        point, lo, hi = (summary[k] * scale for k in ("iqm", "lo", "hi"))
+        return f"{point:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+    per_seed = (entry.get(f"{final}_per_seed") or {}).get(key)
+    if per_seed is not None and len(per_seed) >= 2:
+        mean, lo, hi = mean_ci(np.asarray(per_seed, dtype=np.float64) * scale)
+        return f"{mean:.{digits}f} ± {(hi - lo) / 2:.{digits}f}"
+    return f"{float(entry[final][key]) * scale:.{digits}f}"
+
+
+def _count(entry: Mapping, key: str) -> str:
+    summary = (entry.get("iqm") or {}).get(key)
+    if summary is not None:
+        return f"{summary['iqm']:.0f} [{summary['lo']:.0f}, {summary['hi']:.0f}]"
+    return str(entry[key]) if key in entry else "n/a"
+
+
+def results_table(results: Mapping) -> str:
+    """Markdown tables: one row per mode (shield modes twice: as deployed, and the policy
+    without its shield), the comparisons, then the checker metrics per split.
+
+    Method columns: final violation %, mean reward, success % and training violations (all,
+    and in the first 20% of training): the interquartile mean over seeds with its 95%
+    stratified-bootstrap interval where ``iqm`` summaries exist, else the mean; seeds, final
+    evaluation episodes. Checker rows: test, heldout, transfer (``n/a`` when null).
+    """
+    lines = [
+        "| Method | Final violation % | Mean reward | Success % | Training violations "
+        "| ... in the first 20% | Seeds | Eval episodes |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    methods = results["methods"]
+    for mode in ordered_modes(methods):
+        e = methods[mode]
+        finals = [("final", "")] + ([("final_unshielded", ", shield off")]
+                                    if "final_unshielded" in e else [])  # fmt: skip
+        for final, note in finals:
+            lines.append(
+                f"| {mode} ({MODE_LABELS.get(mode, mode)}{note}) "
+                f"| {_cell(e, 'violation_rate', 100.0, 1, final)} "
+                f"| {_cell(e, 'mean_reward', 1.0, 3, final)} "
+                f"| {_cell(e, 'success_rate', 100.0, 1, final)} "
+                f"| {_count(e, 'training_violations')} "
+                f"| {_count(e, 'training_violations_first20')} "
+                f"| {int(e['seeds'])} "
+                f"| {int(e[final]['episodes'])} |"
+            )
+    lines += [
+        "",
+        "Interquartile mean over seeds [95% stratified-bootstrap interval]; training "
+        "violations per seed, counted from the first update.",
+    ]
+    comparisons = results.get("comparisons") or {}
+    if comparisons:
+        lines += ["", "| Comparison | P | 95% interval |", "|---|---:|---:|"]
+        for name, c in comparisons.items():
+            x, key = name.split("_beats_shaped_")
+            what = "in the first 20% of training" if key.endswith("first20") else "in training"
+            lines.append(f"| P({x} has fewer violations than shaped {what}) "
+                         f"| {c['p']:.2f} | [{c['lo']:.2f}, {c['hi']:.2f}] |")  # fmt: skip
+    lines += [
+        "",
+        "| Checker split | Accuracy | Precision | Recall | F1 | AUROC | ECE |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    chk = results.get("checker") or {}
+
+    def row(name: str, m: Mapping) -> str:
+        return f"| {name} |" + "".join(f" {float(m[k]):.3f} |" for k in CHECKER_METRICS)
+
+    for split in CHECKER_SPLITS:
+        m = chk.get(split)
+        if m is None:
+            if split == "transfer":
+                continue  # only shown by experiments that measure transfer
+            lines.append(f"| {split} |" + " n/a |" * len(CHECKER_METRICS))
+            continue
+        lines.append(row(split, m))
+    shield = chk.get("shield")
+    if shield:  # the shield's own checker, on its own streams' test split
+        lines.append(row(f"test, shield's checker (guided {float(shield['guided']):g})",
+                         shield["test"]))  # fmt: skip
+    by = chk.get("auroc_by")
+    if by:  # a memory checker: how well it ranks each constraint type, and counts
+        rows = [("memory checker", by)]
+        if shield and shield.get("auroc_by"):
+            rows.append(("shield's checker", shield["auroc_by"]))
+        lines += ["", "| Checker AUROC on test | " + " | ".join(by) + " |",
+                  "|---|" + "---:|" * len(by)]  # fmt: skip
+        lines += [f"| {name} | " + " | ".join("n/a" if aurocs.get(k) is None else
+                                              f"{aurocs[k]:.3f}" for k in by) + " |"
+                  for name, aurocs in rows]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+class ReportPaths(NamedTuple):
+    """Files written by :func:`write_report`."""
+
+    json: Path
+    md: Path
+
+
+def _format_duration(seconds: float) -> str:
+    s = int(round(seconds))
+    h, rem = divmod(s, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}h {m:02d}m {s:02d}s" if h else f"{m}m {s:02d}s"
+
+
+def _baseline_note(timing: Mapping) -> str:
+    """`` on a machine where ...``: the baseline learner's figure, when it was measured."""
+    base = timing.get("machine_baseline")
+    if not base:
+        return ""
+    return (
+        f", on a machine where the PureJaxRL-style PPO baseline (`python -m "
+        f"benchmarks.purejaxrl_ppo --env {base['env']}`) runs at {float(base['sps']):,.0f} "
+        f"steps/s ({base['device']})"
+    )
+
+
+def _code_note(entries: list) -> str:
+    """Which code made the results (``results["code"]``, :mod:`experiments.provenance`)."""
+    if not entries:
+        return ""
+    last = entries[-1]
+    git = f", git {last['git']}" if last.get("git") else ""
+    jax_version = last["versions"].get("jax")
+    note = f"\nCode: sources sha256 {last['sha256'][:12]}{git}, jax {jax_version}.\n"
+    if len(entries) > 1:
+        note += (
+            f"\n**Warning: {len(entries)} versions of the code wrote into this directory** (a "
+            "resume after a change; `code.json`): phases made by an earlier one were kept, so "
+            "a fresh run of the same command may give other figures.\n"
+        )
+    return note
+
+
+def _smoke_note(results: Mapping) -> str:
+    """A warning atop a ``--quick`` run's report: its sizes test the outputs, not the agents."""
+    if not (results.get("config") or {}).get("quick"):
+        return ""
+    return ("**A `--quick` smoke test: these numbers mean nothing** (a few thousand steps, "
+            "two seeds); run without `--quick` for results.\n\n")  # fmt: skip
+
+
+def write_report(results: dict, out_dir: str | os.PathLike) -> ReportPaths:
+    """Validate ``results`` then atomically write ``results.json`` and ``results.md``.
+
+    Raises ``ValueError`` (see :func:`validate_results`) before touching the filesystem when
+    ``results`` is invalid. Numpy values are converted, NaN/inf extras become null
+    (:func:`jaxgrid.io.write_json`). Each file is written atomically, so a reader never sees a
+    partial file. Returns ``ReportPaths(json, md)``.
+    """
+    validate_results(results)
+    out = Path(out_dir)
+    md = (
+        f"# Results: {results['experiment']}\n\n"
+        + _smoke_note(results)
+        + results_table(results)
+        + f"\nTotal wall time: {_format_duration(float(results['timing']['total_s']))}"
+        + _baseline_note(results["timing"])
+        + ".\n"
+        + _code_note(results.get("code") or [])
+    )
+    json_path, md_path = out / "results.json", out / "results.md"
+    write_json(json_path, results)
+    atomic_write(md_path, md)
+    return ReportPaths(json_path, md_path)
+
+
+def summarise(results: Mapping) -> str:
+    """Short multi-line console summary: one line per mode, the checker AUROC and wall time."""
+    quick = (results.get("config") or {}).get("quick")
+    lines = [f"{results.get('experiment', '?')}" + (" (--quick: these numbers mean nothing)"
+                                                    if quick else "") + ":"]  # fmt: skip
+    methods = results["methods"]
+    width = max(len(m) for m in methods)
+    for mode in ordered_modes(methods):
+        e = methods[mode]
+        lines.append(
+            f"  {mode:<{width}}  violations {_cell(e, 'violation_rate', 100.0, 1)}%"
+            f"  reward {_cell(e, 'mean_reward', 1.0, 3)}"
+            f"  success {_cell(e, 'success_rate', 100.0, 1)}%"
+            f"  training violations {_count(e, 'training_violations')}"
+            f"  ({int(e['seeds'])} seeds, {int(e['final']['episodes'])} episodes)"
+        )
+    chk = results.get("checker") or {}
+    parts = [
+        f"{split} {float(chk[split]['auroc']):.3f}"
+        for split in CHECKER_SPLITS
+        if chk.get(split) is not None
+    ]
+    if chk.get("shield") is not None:
+        parts.append(f"shield's checker {float(chk['shield']['test']['auroc']):.3f}")
+    lines.append("  checker AUROC: " + (", ".join(parts) if parts else "n/a"))
+    total = (results.get("timing") or {}).get("total_s")
+    if total is not None:
+        lines.append(f"  total time: {_format_duration(float(total))}")
+    return "\n".join(lines)
