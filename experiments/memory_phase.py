@@ -32,7 +32,8 @@ import checker as chk
 from checker import memory
 from checker.metrics import binary_metrics
 from checker.trained import params_sha256
-from experiments.phases import _rates, _redo
+from experiments.phases import redo
+from experiments.report import checker_rates
 from jaxgrid.io import read_json, write_json
 
 SHIELD_CHECKER = "shield_checker"  # the shield's own checker: DIR/shield_checker{/,.json}
@@ -63,7 +64,7 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
                                  f"--checker-actions is {cfg.checker_actions}")  # fmt: skip
             return trained, report
         except (ValueError, FileNotFoundError) as e:
-            _redo(phase, e)
+            redo(phase, e)
     env = cfg.ppo.make_env()
     key = jax.random.PRNGKey(cfg.seed)
     data = memory.collect_streams(env, key, settings.streams, settings.steps, settings.guided)
@@ -83,7 +84,7 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
                **memory.evaluate_streams(probs, test, label=settings.label)}  # fmt: skip
     report = {
         "kind": "memory",
-        "test": _rates(metrics),  # undefined rates filled as the window checker's report does
+        "test": checker_rates(metrics),  # undefined rates filled as the window checker's are
         "heldout": None,  # the agents' sentences are a fixed list: no held-out templates
         "transfer": None,
         "details": {"test": metrics},

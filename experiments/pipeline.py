@@ -53,7 +53,7 @@ from agents.config import REWARD_MODES, PPOConfig, check_sweep
 from checker import cli
 from checker.memory import MemoryTrainConfig
 from checker.train import CheckerTrainConfig
-from experiments import memory_phase, phases
+from experiments import assembly, memory_phase, phases, scheduling
 from jaxgrid import rundir
 
 CHECKER_KINDS = ("window", "memory")
@@ -316,8 +316,8 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     out = phases.prepare_out(cfg)  # fails here, before any training, if not writable
     start = time.perf_counter()
     keep = {} if keep is None else keep
-    compiler = phases.Compiler(cfg)  # the modes' programs compile in a thread meanwhile
-    workers = phases.Workers(cfg.workers)  # the phases that train, cfg.workers at once
+    compiler = scheduling.Compiler(cfg)  # the modes' programs compile in a thread meanwhile
+    workers = scheduling.Workers(cfg.workers)  # the phases that train, cfg.workers at once
     interrupted = False
     try:
         compiler.submit()  # the modes without a checker, while the checker is made
@@ -347,14 +347,14 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
         compiler.close()
     keep.update(trained=trained, report=checker_report, runs=runs)
     if cfg.sweep_values:  # one results directory per swept value, and a summary
-        return phases.write_sweep(cfg, out, runs, checker_report, time.perf_counter() - start)
+        return assembly.write_sweep(cfg, out, runs, checker_report, time.perf_counter() - start)
     phases.write_gif(cfg, out, runs, trained)
-    results = phases.assemble(cfg, out, runs, checker_report, time.perf_counter() - start)
+    results = assembly.assemble(cfg, out, runs, checker_report, time.perf_counter() - start)
     if cfg.machine_baseline:  # after the run, so that it does not delay any phase
         from benchmarks.purejaxrl_ppo import machine_baseline
 
         results["timing"]["machine_baseline"] = machine_baseline()
-    paths = phases.write_outputs(cfg, out, results, runs)  # f
+    paths = assembly.write_outputs(cfg, out, results, runs)  # f
     from experiments.report import summarise
 
     print(summarise(results))

@@ -2,8 +2,8 @@
 
 - :mod:`experiments.report.schema`: the ``results.json`` contract and its check;
 - :mod:`experiments.report.plots`: the learning-curve and sweep figures;
-- :mod:`experiments.report.tables`: the Markdown tables, ``results.json`` + ``results.md``,
-  and the console summary.
+- :mod:`experiments.report.tables`: the Markdown tables (of one run and of a sweep),
+  ``results.json`` + ``results.md``, and the console summary.
 
 The statistics they show (IQM, bootstrap and Student-t intervals) are
 :mod:`experiments.stats`'. Importing the report loads neither matplotlib nor ``scipy.stats``:
@@ -17,9 +17,16 @@ from experiments.report.schema import (
     MODE_LABELS,
     MODES,
     RESULTS_SCHEMA,
+    checker_rates,
     validate_results,
 )
-from experiments.report.tables import ReportPaths, results_table, summarise, write_report
+from experiments.report.tables import (
+    ReportPaths,
+    results_table,
+    summarise,
+    sweep_table,
+    write_report,
+)
 
 __all__ = [
     "CHECKER_METRICS",
@@ -29,11 +36,13 @@ __all__ = [
     "MODE_LABELS",
     "RESULTS_SCHEMA",
     "ReportPaths",
+    "checker_rates",
     "curves_from_results",
     "plot_curves",
     "plot_sweep",
     "results_table",
     "summarise",
+    "sweep_table",
     "validate_results",
     "write_report",
 ]

@@ -137,7 +137,7 @@ def plot_curves(
 def plot_sweep(
     summary: Mapping, path: str | os.PathLike, title: str | None = None, *, dpi: int = 120
 ) -> Path:
-    """A two-panel PNG of a sweep (:func:`experiments.phases.write_sweep`'s summary): final
+    """A two-panel PNG of a sweep (:func:`experiments.assembly.write_sweep`'s summary): final
     violation % and success % against the swept value, one line per mode (interquartile
     mean over seeds, 95% bootstrap interval as error bars, clipped to [0, 100])."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg

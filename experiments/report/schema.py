@@ -2,7 +2,8 @@
 
 - :data:`MODES`, :data:`MODE_LABELS` and :func:`ordered_modes`: the reward modes, their names
   and the order every table and figure shows them in.
-- :data:`CHECKER_METRICS` and :data:`CHECKER_SPLITS`: the learned checker's rates and splits.
+- :data:`CHECKER_METRICS`, :data:`CHECKER_SPLITS` and :func:`checker_rates`: the learned
+  checker's rates, its splits, and its metrics as ``results.json`` holds them.
 - :data:`RESULTS_SCHEMA` and :func:`validate_results`: the shape of ``results.json``, checked
   before anything is written.
 
@@ -41,6 +42,7 @@ __all__ = [
     "MODE_LABELS",
     "RATE_KEYS",
     "RESULTS_SCHEMA",
+    "checker_rates",
     "ordered_modes",
     "validate_results",
 ]
@@ -105,6 +107,15 @@ RESULTS_SCHEMA: dict[str, Any] = {
     "timing": {"total_s": "float>=0"},
     "code": "optional: [{sha256, versions, git, first_used}] every code that wrote the run",
 }
+
+
+def checker_rates(metrics: Mapping) -> dict:
+    """The :data:`CHECKER_METRICS` of ``metrics`` (a checker evaluation) as ``results.json``
+    holds them; undefined ones (no predicted positives, one class) become 0 for precision/F1
+    (the usual zero-division convention) and 0.5 for AUROC."""
+    fill = {"auroc": 0.5}
+    return {k: float(metrics[k]) if metrics[k] is not None else fill.get(k, 0.0)
+            for k in CHECKER_METRICS}  # fmt: skip
 
 
 def ordered_modes(modes: Any) -> list[str]:

@@ -5,6 +5,8 @@
 - :func:`write_report`: ``results.json`` and ``results.md``, validated first
   (:func:`experiments.report.schema.validate_results`), each written atomically.
 - :func:`summarise`: the end-of-run console summary.
+- :func:`sweep_table`: a sweep's summary (:func:`experiments.assembly.write_sweep`) as
+  Markdown.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from experiments.report.schema import (
 from experiments.stats import mean_ci
 from jaxgrid.io import atomic_write, write_json
 
-__all__ = ["ReportPaths", "results_table", "summarise", "write_report"]
+__all__ = ["ReportPaths", "results_table", "summarise", "sweep_table", "write_report"]
 
 
 def _cell(entry: Mapping, key: str, scale: float, digits: int, final: str = "final") -> str:
@@ -234,3 +236,34 @@ def summarise(results: Mapping) -> str:
     if total is not None:
         lines.append(f"  total time: {_format_duration(float(total))}")
     return "\n".join(lines)
+
+
+def sweep_table(summary: dict) -> str:
+    """Markdown: one row per (value, mode), IQM [95% interval]; then each mode's throughput."""
+    name = summary["sweep"]["name"]
+
+    def cell(s, scale, digits):
+        return (
+            f"{scale * s['iqm']:.{digits}f} [{scale * s['lo']:.{digits}f}, "
+            f"{scale * s['hi']:.{digits}f}]"
+        )
+
+    lines = [f"# Sweep of {name}: {summary['experiment']}", "",
+             f"| {name} | mode | final violation % | success % | training violations |",
+             "|---:|---|---:|---:|---:|"]  # fmt: skip
+    for r in summary["rows"]:
+        lines.append(f"| {r[name]:g} | {r['mode']} | {cell(r['violation_rate'], 100, 1)} | "
+                     f"{cell(r['success_rate'], 100, 1)} | "
+                     f"{cell(r['training_violations'], 1, 0)} |")  # fmt: skip
+    lines += ["", f"Interquartile mean over {summary['seeds']} seeds per value [95% stratified-"
+              "bootstrap interval]. Every mode trains all its agents (values x seeds) in one "
+              "compiled program:", "",
+              "| mode | agents | env steps/s, all agents | per agent | wall time |",
+              "|---|---:|---:|---:|---:|"]  # fmt: skip
+    for mode, t in summary["throughput"].items():
+        lines.append(
+            f"| {mode} | {t['agents']} | {t['steps_per_s']:,.0f} | "
+            f"{t['steps_per_s_per_agent']:,.0f} | {t['wall_s']:.0f} s |"
+        )
+    lines.append("\nThroughput counts compilation and evaluations in the wall time.")
+    return "\n".join(lines) + "\n"

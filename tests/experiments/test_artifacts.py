@@ -28,7 +28,7 @@ from helpers.experiment_runs import check_outputs
 import checker as chk
 from agents.runner import NonFiniteError
 from agents.runner import run as run_ppo
-from experiments import phases, pipeline, provenance, two_rooms
+from experiments import assembly, phases, pipeline, provenance, two_rooms
 from jaxgrid import rundir
 from jaxgrid.io import read_json, read_jsonl
 
@@ -75,9 +75,9 @@ def test_resume_with_other_code_is_recorded_and_reported(run_copy, capsys, monke
     assert "made by other code" in err and "code.json" in err, err
     assert [e["sha256"] for e in results["code"]][1:] == ["0" * 64]
     assert "Warning: 2 versions of the code" in (out / "results.md").read_text()
-    assert results["methods"]["checker"]["final"] == state["results"]["methods"]["checker"][
-        "final"
-    ]  # the finished phases were kept
+    assert (
+        results["methods"]["checker"]["final"] == state["results"]["methods"]["checker"]["final"]
+    )  # the finished phases were kept
 
 
 @pytest.fixture
@@ -223,7 +223,8 @@ def test_mode_made_with_another_checker_is_trained_again(run_copy, capsys):
     import jax
 
     other = state["trained"].replace(
-        params=jax.tree.map(lambda x: x + 1e-3, state["trained"].params))
+        params=jax.tree.map(lambda x: x + 1e-3, state["trained"].params)
+    )
     phases.train_agents(cfg, out, "checker", other)
     assert_redone(capsys, "d. checker", "another checker")
 
@@ -255,12 +256,11 @@ def test_report_files_are_written_again(run_copy, how):
     for name in names:
         damage(out / name, how)
     phases.write_gif(cfg, out, state["runs"], state["trained"])
-    phases.write_outputs(cfg, out, state["results"], state["runs"])
+    assembly.write_outputs(cfg, out, state["results"], state["runs"])
     assert read_json(out / "results.json") == read_json(state["out"] / "results.json")
     assert (out / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "episodes.gif").read_bytes()[:6] in (b"GIF87a", b"GIF89a")
     assert len(read_jsonl(out / "metrics.jsonl")) == len(state["runs"]["checker"]["records"])
-
 
 
 # ------------------------------------------------------------------ --checker DIR reuse
@@ -351,8 +351,10 @@ def test_bad_flags_exit_2_before_any_work(argv, message, tmp_path, capsys, monke
     monkeypatch.chdir(tmp_path)
     try:
         with pytest.raises(SystemExit) as e:
-            pipeline.main(two_rooms.SCENARIO, ["--quick", "--no-progress",
-                                               "--out", str(tmp_path / "run"), *argv])
+            pipeline.main(
+                two_rooms.SCENARIO,
+                ["--quick", "--no-progress", "--out", str(tmp_path / "run"), *argv],
+            )
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
     assert e.value.code == 2

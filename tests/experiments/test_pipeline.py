@@ -17,7 +17,15 @@ from helpers.experiment_runs import check_outputs, quick, refused_before_any_com
 
 from agents.config import REWARD_MODES, PPOConfig
 from checker.train import CheckerTrainConfig
-from experiments import label_timing, phases, pipeline, three_rooms_key, two_rooms, two_rooms_lava
+from experiments import (
+    label_timing,
+    phases,
+    pipeline,
+    scheduling,
+    three_rooms_key,
+    two_rooms,
+    two_rooms_lava,
+)
 from experiments.pipeline import BASE, PRESETS, STEP_BUDGETS, ExperimentConfig, preset
 
 SCENARIOS = {"two_rooms": two_rooms, "two_rooms_lava": two_rooms_lava,
@@ -107,6 +115,7 @@ def test_presets_keep_the_published_configurations(experiment, name):
 def test_one_configuration_for_every_scenario(name):
     """Within a preset the scenarios' agents differ in the env id and the step budget only,
     and every behaviour agent is the compared agents' PPO in ``none`` mode."""
+
     def agents(experiment, mode):
         run = phases.ppo_config(preset(SCENARIOS[experiment].SCENARIO, name), mode)
         return dataclasses.replace(run, env_id="-", total_timesteps=10**9, eval_every=1)
@@ -131,10 +140,21 @@ def test_flags_set_every_part_and_keep_todays_names(tmp_path):
             "--checker-threshold", "0.6"]  # fmt: skip
     cfg = pipeline.parse_args(argv, two_rooms.SCENARIO)
     assert (cfg.seeds, cfg.modes, cfg.quick, cfg.out, cfg.progress) == (
-        4, ("checker", "none"), True, str(tmp_path), False)
-    assert (cfg.ppo.total_timesteps, cfg.ppo.penalty, cfg.ppo.lr, cfg.ppo.ent_coef,
-            cfg.ppo.penalty_start, cfg.ppo.seed, cfg.ppo.num_envs) == (
-        1_000_000, 2.0, 3e-4, 0.05, 0.3, 5, 32)  # --quick's envs stay
+        4,
+        ("checker", "none"),
+        True,
+        str(tmp_path),
+        False,
+    )
+    assert (
+        cfg.ppo.total_timesteps,
+        cfg.ppo.penalty,
+        cfg.ppo.lr,
+        cfg.ppo.ent_coef,
+        cfg.ppo.penalty_start,
+        cfg.ppo.seed,
+        cfg.ppo.num_envs,
+    ) == (1_000_000, 2.0, 3e-4, 0.05, 0.3, 5, 32)  # --quick's envs stay
     chk = cfg.checker_train
     assert (chk.epochs, chk.window, chk.lookahead, chk.distractors) == (7, 4, 2, 0.0)
     # The checker trains from the first seed, measured at the agents' alarm threshold.
@@ -154,11 +174,31 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
               "window lookahead num-envs num-steps num-minibatches update-epochs lr penalty "
               "penalty-start penalty-warmup novelty-bonus ent-coef curve-points eval-episodes "
               "final-episodes gif-episodes seed quick paper progress").split()  # fmt: skip
-    checker_training = [f"checker-{n}" for n in ("batch-size", "lr", "weight-decay", "patience",
-                        "test-fraction", "val-fraction", "counterfactuals", "distractors")]
+    checker_training = [
+        f"checker-{n}"
+        for n in (
+            "batch-size",
+            "lr",
+            "weight-decay",
+            "patience",
+            "test-fraction",
+            "val-fraction",
+            "counterfactuals",
+            "distractors",
+        )
+    ]
     assert {f"--{n}" for n in todays + checker_training} <= set(entries)
-    hidden = ("experiment", "checker-env-id", "env-id", "env-kwargs", "reward-mode",
-              "eval-every", "total-timesteps", "checker-seed", "checker-threshold-")
+    hidden = (
+        "experiment",
+        "checker-env-id",
+        "env-id",
+        "env-kwargs",
+        "reward-mode",
+        "eval-every",
+        "total-timesteps",
+        "checker-seed",
+        "checker-threshold-",
+    )
     assert not {f"--{n}" for n in hidden} & set(entries)
     missing = [flag for flag, text in entries.items() if flag != "--help" and
                "(default:" not in text]  # fmt: skip
@@ -258,10 +298,14 @@ def test_out_extends_with_more_modes(tmp_path):
     argv = ["--quick", "--no-progress", "--out", str(tmp_path)]
     phases.prepare_out(pipeline.parse_args([*argv, "--modes", "checker"], two_rooms.SCENARIO))
     more = pipeline.parse_args(
-        [*argv, "--modes", "checker,shaped,none", "--machine-baseline"], two_rooms.SCENARIO)
+        [*argv, "--modes", "checker,shaped,none", "--machine-baseline"], two_rooms.SCENARIO
+    )
     phases.prepare_out(more)
     assert json.loads((tmp_path / "config.json").read_text())["modes"] == [
-        "checker", "shaped", "none"]
+        "checker",
+        "shaped",
+        "none",
+    ]
     with pytest.raises(ValueError, match="seeds"):
         phases.prepare_out(pipeline.parse_args([*argv, "--seeds", "3"], two_rooms.SCENARIO))
 
@@ -324,15 +368,18 @@ def test_collection_epsilon_mixes_uniform_actions_into_the_behaviour_agent():
     import jaxgrid
     from agents.train import make_learner
 
-    config = PPOConfig(env_id="TwoRooms-v0", num_envs=8, num_steps=8, total_timesteps=64,
-                       eval_every=1)
+    config = PPOConfig(
+        env_id="TwoRooms-v0", num_envs=8, num_steps=8, total_timesteps=64, eval_every=1
+    )
     params = make_learner(config).init(jax.random.key(0)).params
     _, ts = jax.vmap(jaxgrid.make("TwoRooms-v0").reset)(jax.random.split(jax.random.key(1), 8))
     obs = jax.tree.map(lambda x: np.repeat(np.asarray(x), 500, axis=0), ts.observation)
     key = jax.random.key(2)
     agent = phases.AgentPolicy(config)
-    np.testing.assert_array_equal(agent(params, obs, None, key),
-                                  dataclasses.replace(agent, epsilon=0.0)(params, obs, None, key))
+    np.testing.assert_array_equal(
+        agent(params, obs, None, key),
+        dataclasses.replace(agent, epsilon=0.0)(params, obs, None, key),
+    )
     uniform = dataclasses.replace(agent, epsilon=1.0)
     counts = np.bincount(uniform(params, obs, None, key), minlength=7)
     assert counts.sum() == 4000 and np.all(np.abs(counts / 4000 - 1 / 7) < 0.03), counts
@@ -342,7 +389,7 @@ def test_workers_raise_the_first_failure_while_others_still_run():
     """A phase that fails stops the experiment at once, not when its turn comes; closing the
     workers sets the event that running phases check."""
     release = threading.Event()
-    workers = phases.Workers(2)
+    workers = scheduling.Workers(2)
     try:
         slow = workers.submit(release.wait, 30)
 

@@ -61,9 +61,15 @@ def good() -> dict:
             "shaped": _method(0.01, 0.92, 0.98),
             "none": _method(0.35, 0.93, 0.99),
             "lagrangian": _method(0.05, 0.85, 0.95),
-            "shield": {**_method(0.0, 0.90, 0.96),
-                       "final_unshielded": {"violation_rate": 0.04, "mean_reward": 0.88,
-                                            "success_rate": 0.95, "episodes": 500}},
+            "shield": {
+                **_method(0.0, 0.90, 0.96),
+                "final_unshielded": {
+                    "violation_rate": 0.04,
+                    "mean_reward": 0.88,
+                    "success_rate": 0.95,
+                    "episodes": 500,
+                },
+            },
             "shield_monitor": _method(0.0, 0.91, 0.97),
         },
         "timing": {"total_s": 123.4},
@@ -410,7 +416,7 @@ def _run(seeds: int, violations, early, shield: bool = False) -> dict:
 
 
 def test_assembled_results_hold_shields_early_violations_and_comparisons(tmp_path):
-    from experiments import phases, pipeline, two_rooms
+    from experiments import assembly, pipeline, two_rooms
 
     cfg = pipeline.parse_args(["--quick", "--seeds", "5", "--out", str(tmp_path)],
                               two_rooms.SCENARIO)  # fmt: skip
@@ -418,7 +424,7 @@ def test_assembled_results_hold_shields_early_violations_and_comparisons(tmp_pat
             "shaped": _run(5, [60, 70, 80, 90, 100], [5, 6, 7, 8, 9]),
             "shield": _run(5, [0, 0, 1, 0, 2], [0, 0, 0, 0, 1], shield=True)}  # fmt: skip
     report = {"test": dict(METRICS), "heldout": None}
-    results = phases.assemble(cfg, tmp_path, runs, report, 12.0)
+    results = assembly.assemble(cfg, tmp_path, runs, report, 12.0)
     validate_results(results)
     assert results["config"]["penalty_start"] == 0.0
     shield = results["methods"]["shield"]

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from experiments import phases, pipeline, two_rooms
+from experiments import assembly, pipeline, two_rooms
 from experiments.report import validate_results
 
 CHECKER = {"accuracy": 0.9, "precision": 0.9, "recall": 0.9, "f1": 0.9, "auroc": 0.95,
@@ -43,7 +43,7 @@ def _cfg(tmp_path, *flags):
 
 def test_select_agents_is_the_run_of_one_value():
     run = _swept_run(0.0)
-    part = phases.select_agents(run, "penalty", 1.0)
+    part = assembly.select_agents(run, "penalty", 1.0)
     assert part["seeds"] == [0, 1, 2] and "sweep" not in part
     np.testing.assert_array_equal(part["train_violations"], [100, 101, 102])
     np.testing.assert_allclose(part["final"]["success_rate"], [0.5, 0.51, 0.52])
@@ -54,7 +54,7 @@ def test_select_agents_is_the_run_of_one_value():
 def test_sweep_writes_results_per_value_and_a_summary(tmp_path):
     cfg = _cfg(tmp_path, "--sweep", "penalty=0.3,1", "--modes", "checker,shaped")
     runs = {"checker": _swept_run(0.0), "shaped": _swept_run(0.05)}
-    summary = phases.write_sweep(cfg, tmp_path, runs, {"test": CHECKER, "heldout": None}, 9.0)
+    summary = assembly.write_sweep(cfg, tmp_path, runs, {"test": CHECKER, "heldout": None}, 9.0)
     for value in ("0.3", "1"):
         results = json.loads((tmp_path / f"penalty={value}" / "results.json").read_text())
         validate_results(results)
