@@ -8,8 +8,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import threading
-import time
 
 import pytest
 from helpers.cli_help import help_entries, squeezed
@@ -17,15 +15,7 @@ from helpers.experiment_runs import check_outputs, quick, refused_before_any_com
 
 from agents.config import REWARD_MODES, PPOConfig
 from checker.train import CheckerTrainConfig
-from experiments import (
-    label_timing,
-    phases,
-    pipeline,
-    scheduling,
-    three_rooms_key,
-    two_rooms,
-    two_rooms_lava,
-)
+from experiments import label_timing, phases, pipeline, three_rooms_key, two_rooms, two_rooms_lava
 from experiments.pipeline import BASE, PRESETS, STEP_BUDGETS, ExperimentConfig, preset
 
 SCENARIOS = {"two_rooms": two_rooms, "two_rooms_lava": two_rooms_lava,
@@ -383,28 +373,3 @@ def test_collection_epsilon_mixes_uniform_actions_into_the_behaviour_agent():
     uniform = dataclasses.replace(agent, epsilon=1.0)
     counts = np.bincount(uniform(params, obs, None, key), minlength=7)
     assert counts.sum() == 4000 and np.all(np.abs(counts / 4000 - 1 / 7) < 0.03), counts
-
-
-def test_workers_raise_the_first_failure_while_others_still_run():
-    """A phase that fails stops the experiment at once, not when its turn comes; closing the
-    workers sets the event that running phases check."""
-    release = threading.Event()
-    workers = scheduling.Workers(2)
-    try:
-        slow = workers.submit(release.wait, 30)
-
-        def fail():
-            raise FloatingPointError("diverged")
-
-        failing = workers.submit(fail)
-        start = time.perf_counter()
-        with pytest.raises(FloatingPointError, match="diverged"):
-            workers.results({"slow": slow, "failing": failing})
-        assert time.perf_counter() - start < 10 and not slow.done()
-        assert not workers.cancel.is_set()
-    finally:
-        release.set()
-        workers.close()
-    assert workers.cancel.is_set() and slow.result() is True
-    with pytest.raises(RuntimeError):  # closed: no new phase starts
-        workers.submit(print)

@@ -1,0 +1,59 @@
+"""Shared cases for the report's tests: a valid ``results.json`` object of every mode, whose
+methods carry per-seed finals (``tests/experiments/conftest.py`` serves it as ``good``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+METRICS = {"accuracy": 0.97, "precision": 0.9, "recall": 0.88, "f1": 0.89, "auroc": 0.99,
+           "ece": 0.02}  # fmt: skip
+
+
+def method(viol: float, reward: float, success: float, seeds: int = 3) -> dict:
+    rng = np.random.default_rng(0)
+    return {
+        "final": {
+            "violation_rate": viol,
+            "mean_reward": reward,
+            "success_rate": success,
+            "episodes": 500,
+        },
+        "training_violations": 1234,
+        "curve": [
+            {"step": s, "violation_rate": viol, "mean_reward": reward, "success_rate": success}
+            for s in (0, 10_000, 20_000)
+        ],
+        "seeds": seeds,
+        "final_per_seed": {
+            "violation_rate": np.clip(viol + 0.01 * rng.standard_normal(seeds), 0, 1).tolist(),
+            "mean_reward": (reward + 0.02 * rng.standard_normal(seeds)).tolist(),
+            "success_rate": [success] * seeds,
+        },
+    }
+
+
+def results() -> dict:
+    """A fresh valid results object: six modes, three seeds each, a null transfer."""
+    return {
+        "experiment": "two_rooms",
+        "config": {"steps": 20_000, "seeds": 3},
+        "checker": {"test": dict(METRICS), "heldout": dict(METRICS), "transfer": None},
+        "methods": {
+            "checker": method(0.02, 0.91, 0.97),
+            "shaped": method(0.01, 0.92, 0.98),
+            "none": method(0.35, 0.93, 0.99),
+            "lagrangian": method(0.05, 0.85, 0.95),
+            "shield": {
+                **method(0.0, 0.90, 0.96),
+                "final_unshielded": {
+                    "violation_rate": 0.04,
+                    "mean_reward": 0.88,
+                    "success_rate": 0.95,
+                    "episodes": 500,
+                },
+            },
+            "shield_monitor": method(0.0, 0.91, 0.97),
+        },
+        "timing": {"total_s": 123.4},
+        "extra_top_level": {"anything": [1, 2, 3]},
+    }
