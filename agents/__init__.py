@@ -7,6 +7,7 @@
 * :mod:`agents.train`: ``make_train(config, checker) -> train(key)`` and the
   :class:`~agents.train.Learner` whose pieces it composes;
 * :mod:`agents.runner`: seeds, devices, progress, logs, checkpoints and resume;
+* :mod:`agents.checkpoint`: checkpoints, their digests, resume points and ``run.json``;
 * :mod:`agents.evaluation`: fixed-seed evaluation episodes.
 
 ``agents`` imports ``checker`` and ``jaxgrid``, never ``experiments``.

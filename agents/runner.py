@@ -22,10 +22,8 @@ returned ``runner``'s env leaves stay split over the processes
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import itertools
-import json
 import os
 import threading
 import time
@@ -40,22 +38,14 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from agents.checkpoint import DIGESTS, CheckpointError, ResumeError
-from agents.checkpoint import kept as _kept
-from agents.checkpoint import make_manager as _checkpoint_manager
-from agents.checkpoint import record_digests as _record_digests  # noqa: F401 (re-exported)
-from agents.checkpoint import restore as _restore
-from agents.checkpoint import resume_point as _resume_point
-from agents.checkpoint import save as _save_checkpoint
-from agents.checkpoint import verified_step as _verified_step
+from agents import checkpoint
 from agents.config import PPOConfig, check_sweep
 from agents.evaluation import summarise
 from agents.train import Learner, RunnerState, make_learner
 from jaxgrid import io
 
-__all__ = ["DIGESTS", "EARLY_FRACTION", "Cancelled", "CheckpointError", "NonFiniteError",
-           "ResumeError", "chunk_records", "early_updates", "load_agents", "precompile",
-           "run"]  # fmt: skip
+__all__ = ["EARLY_FRACTION", "Cancelled", "NonFiniteError", "chunk_records", "early_updates",
+           "load_agents", "precompile", "run"]  # fmt: skip
 
 
 class NonFiniteError(FloatingPointError):
@@ -125,7 +115,11 @@ def early_updates(config: PPOConfig) -> int:
 
 
 def chunk_records(
-    config: PPOConfig, chunk: int, seeds: Sequence[int], metrics, totals: np.ndarray,
+    config: PPOConfig,
+    chunk: int,
+    seeds: Sequence[int],
+    metrics,
+    totals: np.ndarray,
     swept: dict[str, Sequence[float]] | None = None,
 ) -> list[dict]:
     """One JSON-serialisable record per agent for chunk ``chunk`` (0-based); ``seeds`` and
@@ -266,13 +260,13 @@ def run(
     done_chunks, records, totals = 0, [], np.zeros(len(seeds), np.int64)
     try:
         if out is not None and checkpoint_every:
-            manager = _checkpoint_manager(out / "checkpoints")
+            manager = checkpoint.make_manager(out / "checkpoints")
         runner = None
         if manager is not None and manager.latest_step() is not None:
             if resume:
-                _check_run_info(out, config, seeds, checker, sweep)
-                done_chunks, records = _resume_point(manager, out, idents, ident)
-                runner = _restore(manager, done_chunks, abstract, shardings)
+                checkpoint.check_run_info(out, config, seeds, checker, sweep)
+                done_chunks, records = checkpoint.resume_point(manager, out, idents, ident)
+                runner = checkpoint.restore(manager, done_chunks, abstract, shardings)
                 for r in records:
                     i = idents.index(ident(r))
                     totals[i] = max(totals[i], r["train/cum_violations"])
@@ -284,8 +278,8 @@ def run(
         if runner is None:
             runner = init(keys, hparams)
         if out is not None and primary:
-            _write_run_info(out, config, seeds, checker, sweep)
-            io.write_jsonl(out / "metrics.jsonl", records)
+            checkpoint.write_run_info(out, config, seeds, checker, sweep)
+            io.write_jsonl(out / checkpoint.METRICS, records)
 
         bar = _progress(
             config.num_chunks, done_chunks, progress and primary, desc or config.reward_mode
@@ -297,7 +291,7 @@ def run(
         )
         for c in range(done_chunks, stop):
             if cancel is not None and cancel.is_set():
-                raise Cancelled(f"stopped before chunk {c + 1}; {_kept(manager, out)}")
+                raise Cancelled(f"stopped before chunk {c + 1}; {checkpoint.kept(manager, out)}")
             new_runner, metrics, finite = chunk(runner)
             metrics, finite = _host(metrics), _host(finite)
             if not finite.all():
@@ -305,17 +299,17 @@ def run(
                 bad = [i[0] for i in bad] if not sweep else [_name(i, sweep) for i in bad]
                 raise NonFiniteError(
                     f"non-finite loss or parameters within updates {c * config.eval_every + 1}-"
-                    f"{(c + 1) * config.eval_every} (seeds {bad}); {_kept(manager, out)}"
+                    f"{(c + 1) * config.eval_every} (seeds {bad}); {checkpoint.kept(manager, out)}"
                 )
             runner = new_runner
             totals += metrics["train"]["violations"].sum(axis=1).astype(np.int64)
             new = chunk_records(config, c, seeds, metrics, totals, swept)
             records.extend(new)
             if out is not None and primary:
-                io.append_jsonl(out / "metrics.jsonl", new)
+                io.append_jsonl(out / checkpoint.METRICS, new)
             last = c + 1 == config.num_chunks
             if manager is not None and ((c + 1) % checkpoint_every == 0 or last):
-                _save_checkpoint(manager, c + 1, runner, out, records, primary)
+                checkpoint.save(manager, c + 1, runner, out, records, primary)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(
@@ -386,6 +380,7 @@ class _Programs:
         if num_episodes not in self._final:
             config, learner = self.learner.config, self.learner
             key = jax.random.PRNGKey(config.eval_seed + 1)
+
             def final(params, hparams):
                 out = summarise(learner.evaluate(params, key, num_episodes, hparams=hparams))
                 if learner.shield is not None:  # the policy alone, too
@@ -465,84 +460,8 @@ def precompile(
     """
     sweep = check_sweep(sweep, config)
     agents = len(seeds) * int(np.prod([len(v) for v in sweep.values()]))
-    train = out_dir is None or not _finished(Path(out_dir), config)
+    train = out_dir is None or not checkpoint.finished(Path(out_dir), config)
     _programs(config, checker, multi_host, tuple(sweep)).warm(agents, final_episodes, train)
-
-
-def _finished(out: Path, config: PPOConfig) -> bool:
-    """Whether ``out``'s checkpoint digests list the run's last chunk (a guess for
-    :func:`precompile`: :func:`run` still verifies the files, and compiles what it needs)."""
-    try:
-        return str(config.num_chunks) in io.read_json(out / DIGESTS)
-    except (FileNotFoundError, ValueError):
-        return False
-
-
-def _checker_sha256(checker) -> str | None:
-    """Identifies the checker's parameters, so that a resume with another checker is refused."""
-    if checker is None:
-        return None
-    from flax import serialization
-
-    from jaxgrid.rundir import sha256_bytes
-
-    return sha256_bytes(serialization.to_bytes(jax.device_get(checker.params)))
-
-
-def _run_info(config: PPOConfig, seeds: list[int], checker=None, sweep=None) -> dict:
-    fields = {k: v for k, v in dataclasses.asdict(config).items() if k != "seed"}
-    info = {"config": fields, "seeds": seeds, "checker_sha256": _checker_sha256(checker)}
-    if sweep:  # absent without a sweep: run.json as before
-        info["sweep"] = {n: [float(v) for v in values] for n, values in sweep.items()}
-    return json.loads(json.dumps(info, default=repr))
-
-
-def _write_run_info(
-    out: Path, config: PPOConfig, seeds: list[int], checker=None, sweep=None
-) -> None:
-    io.write_json(out / "run.json", _run_info(config, seeds, checker, sweep))
-
-
-def _check_run_info(
-    out: Path, config: PPOConfig, seeds: list[int], checker=None, sweep=None
-) -> None:
-    """Refuse to resume a run made with another configuration or other seeds (``ValueError``)
-    and a damaged, missing or other checker's ``run.json`` (:class:`ResumeError`)."""
-    path = out / "run.json"
-    start_over = "delete it to start over"
-    try:
-        saved = io.read_json(path)
-        saved["seeds"], saved["config"]
-    except FileNotFoundError:
-        raise ResumeError(f"{path}: missing, so the checkpoints in {out / 'checkpoints'} cannot "
-                          f"be matched to a configuration; {start_over}") from None  # fmt: skip
-    except (ValueError, TypeError, KeyError) as e:
-        raise ResumeError(f"{path}: damaged ({e}); {start_over}") from None
-    now = _run_info(config, seeds, checker, sweep)
-    if saved.get("checker_sha256") != now["checker_sha256"]:
-        raise ResumeError(f"{path}: the run in {out} was made with another checker; "
-                          f"{start_over}")  # fmt: skip
-    if saved.get("sweep") != now.get("sweep"):
-        raise ValueError(
-            f"cannot resume {out}: it was run with sweep {saved.get('sweep')}, not "
-            f"{now.get('sweep')} (pass resume=False to start over, or another out_dir)"
-        )
-    if saved["seeds"] != now["seeds"]:
-        raise ValueError(
-            f"cannot resume {out}: it was run with seeds {saved['seeds']}, not {seeds} "
-            "(pass resume=False to start over, or another out_dir)"
-        )
-    diff = sorted(
-        k for k in set(saved["config"]) | set(now["config"])
-        if saved["config"].get(k) != now["config"].get(k)
-        and not (k not in saved["config"] and io.holds_declared_default(config, k))
-    )  # fmt: skip
-    if diff:
-        raise ValueError(
-            f"cannot resume {out}: PPOConfig differs in {diff} (saved "
-            f"{ {k: saved['config'].get(k) for k in diff} }); pass resume=False to start "
-            "over, or another out_dir"
-        )
 
 
 # ----------------------------------------------------------------------------------------
@@ -606,22 +525,11 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
     (stacked over agents), ``chunks`` (chunks done) and ``complete``.
     """
     out = Path(out_dir)
-    try:
-        info = io.read_json(out / "run.json")
-        saved = info["config"]
-    except FileNotFoundError:
-        raise ValueError(f"{out}: no run.json, so no run of agents.runner.run") from None
-    except (ValueError, TypeError, KeyError) as e:
-        raise ValueError(f"{out / 'run.json'}: damaged ({e})") from None
+    info = checkpoint.read_run_info(out)
     if not (out / "checkpoints").is_dir():
         raise ValueError(f"{out / 'checkpoints'}: no checkpoint")
-
-    def tuples(x):  # JSON lists back to the config's tuples
-        return tuple(map(tuples, x)) if isinstance(x, list) else x
-
-    known = {f.name for f in dataclasses.fields(PPOConfig)}
-    config = PPOConfig(**{k: tuples(v) for k, v in saved.items() if k in known})
-    if _checker_sha256(checker) != info.get("checker_sha256"):
+    config = checkpoint.saved_config(info)
+    if checkpoint.checker_sha256(checker) != info.get("checker_sha256"):
         raise ValueError(f"{out}: the run was trained with "
                          f"{'another checker' if info.get('checker_sha256') else 'no checker'}"
                          f"{'' if checker is not None else ' (pass its checker)'}")  # fmt: skip
@@ -633,9 +541,9 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
     learner = make_learner(config, checker)
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
     abstract = jax.eval_shape(jax.vmap(learner.init), keys, hparams)
-    manager = _checkpoint_manager(out / "checkpoints")
-    chunks = _verified_step(manager, out, delete=False)
-    state = _restore(manager, chunks, abstract, None)
+    manager = checkpoint.make_manager(out / "checkpoints")
+    chunks = checkpoint.verified_step(manager, out, delete=False)
+    state = checkpoint.restore(manager, chunks, abstract, None)
     return {"config": config, "learner": learner, "seeds": seeds, "hparams": hparams,
             "params": state.params, "chunks": chunks,
             "complete": chunks == config.num_chunks}  # fmt: skip
