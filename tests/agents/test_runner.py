@@ -32,7 +32,8 @@ from helpers.host_devices import ROOT, device_env
 
 from agents import checkpoint, runner
 from agents.config import PPOConfig
-from agents.runner import NonFiniteError, load_agents, precompile, run
+from agents.programs import precompile, programs_for
+from agents.runner import NonFiniteError, load_agents, run
 from experiments import breakdown
 
 # ------------------------------------------------------------------ multi-device process
@@ -141,7 +142,7 @@ def test_precompiled_programs_are_used_and_change_nothing(uninterrupted):
     thread.start()
     thread.join()
     precompile(TINY, seeds=SEEDS, final_episodes=4)  # adds the final evaluation's program
-    programs = runner._programs(TINY, None, multi_host=False)
+    programs = programs_for(TINY, None, multi_host=False)
     for name, args in (("init", ()), ("chunk", ()), ("final", (4,))):
         assert isinstance(programs.executable(name, len(SEEDS), *args), jax.stages.Compiled)
     with count_compiles() as compiled:
@@ -160,7 +161,7 @@ def test_precompile_of_a_finished_run_compiles_only_its_final_evaluation(tmp_pat
     (tmp_path / checkpoint.DIGESTS).write_text(json.dumps({"1": {}, "2": {}}))
     assert checkpoint.finished(tmp_path, config)
     precompile(config, seeds=SEEDS, final_episodes=4, out_dir=tmp_path)
-    programs = runner._programs(config, None, multi_host=False)
+    programs = programs_for(config, None, multi_host=False)
     assert isinstance(programs.executable("final", len(SEEDS), 4), jax.stages.Compiled)
     for name in ("init", "chunk"):
         assert not isinstance(programs.executable(name, len(SEEDS)), jax.stages.Compiled)
