@@ -314,7 +314,7 @@ def profile_ours(ours: Ours, repeats: int, cache: dict) -> dict:
         fn = _env_only_fn(env, c.num_envs, c.num_steps, env.num_actions)
         cache["env"] = (fn, jax.random.PRNGKey(1))
         # The same rollout without any checker work (the none/shaped modes' rollout).
-        plain = make_learner(make_config("none", _sizes_of(c), ours.updates))
+        plain = make_learner(make_config("none", sizes_of(c), ours.updates))
         cache["plain"] = (_rollout_fn(plain), jax.jit(plain.init)(jax.random.PRNGKey(0)))
     pieces = {
         "update": (learner.update, runner),
@@ -342,7 +342,8 @@ def profile_ours(ours: Ours, repeats: int, cache: dict) -> dict:
     return out
 
 
-def _sizes_of(c) -> dict:
+def sizes_of(c) -> dict:
+    """The sizes :func:`make_config` takes that give back ``c``'s (env, batch, network)."""
     return {
         "env": c.env_id, "num_envs": c.num_envs, "num_steps": c.num_steps,
         "epochs": c.update_epochs, "minibatches": c.num_minibatches,

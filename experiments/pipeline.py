@@ -294,8 +294,10 @@ def preset(cfg: ExperimentConfig, name: str = "default") -> ExperimentConfig:
     return cfg
 
 
-def _make_checker(cfg: ExperimentConfig, out, keep: dict, cancel, reused=None):
-    """Phases a-c, or the reused checker ``reused``: ``(trained checker, its report)``."""
+def make_checker(cfg: ExperimentConfig, out, keep: dict, cancel, reused=None):
+    """Phases a-c, or the reused checker ``reused``: ``(trained checker, its report)``.
+    ``keep`` receives the ``behaviour`` agent and the checker ``data`` that phases a-b made;
+    ``cancel`` stops the behaviour agent's training at its next checkpoint."""
     if reused is not None:
         return phases.reuse_checker(cfg, reused)
     if cfg.checker_kind == "memory":  # a-c: streams, the recurrent checker, its report
@@ -321,7 +323,7 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     interrupted = False
     try:
         compiler.submit()  # the modes without a checker, while the checker is made
-        made = workers.submit(_make_checker, cfg, out, keep, workers.cancel, reused)  # a-c
+        made = workers.submit(make_checker, cfg, out, keep, workers.cancel, reused)  # a-c
         own = None  # c': the shield's own checker, beside c
         if cfg.shield_guided is not None and "shield" in cfg.modes:
             own = workers.submit(memory_phase.train_memory_checker, cfg, out, guided=

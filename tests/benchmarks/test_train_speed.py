@@ -75,7 +75,7 @@ def test_cell_dim_reaches_the_timed_config():
     wide = train_speed.make_config("checker", {**sizes, "cell_dim": 32}, 1)
     assert wide.cell_dim == 32
     # --profile's checker-free reference is built from the timed config's sizes
-    assert train_speed.make_config("none", train_speed._sizes_of(wide), 1).cell_dim == 32
+    assert train_speed.make_config("none", train_speed.sizes_of(wide), 1).cell_dim == 32
 
 
 @pytest.mark.parametrize(

@@ -119,7 +119,7 @@ def test_breakdown_names_an_older_checkpoint_it_replays(tmp_path, capsys):
     row = {"seed": 0, "violation_rate": 0.5, "success_rate": 0.25, "groups": {},
            "stages": {}}  # fmt: skip
     (tmp_path / "run.json").write_text("{}")
-    breakdown._print(breakdown.BreakdownConfig(run=str(tmp_path), episodes=8), [row], got)
+    breakdown.print_rows(breakdown.BreakdownConfig(run=str(tmp_path), episodes=8), [row], got)
     out = capsys.readouterr().out
     assert "checkpoint after 1 of 4 chunks (unfinished; the newest, after 2 chunks" in out
 
