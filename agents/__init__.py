@@ -10,7 +10,9 @@
 * :mod:`agents.checkpoint`: checkpoints, their digests, resume points and ``run.json``;
 * :mod:`agents.programs`: the runner's compiled programs, kept and compiled ahead;
 * :mod:`agents.devices`: the env batch split over devices and hosts;
-* :mod:`agents.evaluation`: fixed-seed evaluation episodes.
+* :mod:`agents.evaluation`: fixed-seed evaluation episodes;
+* :mod:`agents.baseline`: the PureJaxRL-style PPO, the reference of our PPO's speed and
+  this machine's baseline figure (timed by :mod:`agents.timing`).
 
 ``agents`` imports ``checker`` and ``jaxgrid``, never ``experiments``.
 """

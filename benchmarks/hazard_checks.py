@@ -29,8 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from agents.timing import measure
 from benchmarks.cli import integer
-from benchmarks.timing import measure
 from checker.cli import run_main
 from jaxgrid import hazard_language as HL
 from jaxgrid import make

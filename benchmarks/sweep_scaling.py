@@ -19,8 +19,8 @@ import jax.numpy as jnp
 from jax import lax
 
 from agents.config import REWARD_MODES
+from agents.timing import compile_ahead, timed
 from benchmarks.cli import integer
-from benchmarks.timing import compile_ahead, timed
 from benchmarks.train_speed import device_description, make_checker, make_config
 from checker.cli import run_main
 

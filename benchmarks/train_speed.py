@@ -5,14 +5,14 @@
     {"mode": "checker", "sps": ..., "compile_s": ..., "device": ..., "baseline_sps": ...,
      "ratio": ..., "num_envs": 256, "num_steps": 128, "epochs": 4, "minibatches": 8, ...}
 
-Protocol (compile ahead, then time; :mod:`benchmarks.timing`):
+Protocol (compile ahead, then time; :mod:`agents.timing`):
 
 * ours: :func:`agents.train.make_learner` on ``--env`` (TwoRooms-v0), one learner per mode;
   the checker modes use a freshly initialised checker (its cost does not depend on its
   weights). The timed executable is ``jit(lax.scan(learner.update))`` over ``U`` updates, the
   form training runs in (:meth:`Learner.chunk` scans updates too); it is compiled ahead,
   which is ``compile_s``, and the runner state is donated;
-* baseline: :func:`benchmarks.purejaxrl_ppo.make_train` (NAVIX DoorKey-8x8, PureJaxRL's
+* baseline: :func:`agents.baseline.make_train` (NAVIX DoorKey-8x8, PureJaxRL's
   ``ppo_minigrid`` structure) with the same envs x steps x epochs x minibatches and ``U``
   updates, also compiled ahead and then run (its ``train`` includes a negligible init);
 * ``--timesteps`` env steps are timed per mode, split into ``--repeats`` short calls of
@@ -69,8 +69,8 @@ import jax.numpy as jnp
 from jax import lax
 
 from agents.config import REWARD_MODES, PPOConfig
+from agents.timing import compile_ahead, timed
 from benchmarks.cli import integer, require
-from benchmarks.timing import compile_ahead, timed
 from checker.cli import run_main
 from jaxgrid.io import write_jsonl
 
@@ -104,7 +104,7 @@ def _log(*args) -> None:
 
 
 def device_description() -> str:
-    from benchmarks.purejaxrl_ppo import device_description as describe
+    from agents.baseline import device_description as describe
 
     return describe()
 
@@ -179,7 +179,7 @@ class Baseline:
     on another env (``env_name``: a jaxgrid id, the same learner on our env)."""
 
     def __init__(self, sizes: dict, updates: int, env_name: str | None = None):
-        from benchmarks import purejaxrl_ppo
+        from agents import baseline
 
         batch = sizes["num_envs"] * sizes["num_steps"]
         self.config = {
@@ -191,7 +191,7 @@ class Baseline:
             **({"ENV_NAME": env_name} if env_name else {}),
         }
         self.steps, self.calls = updates * batch, 0
-        train = purejaxrl_ppo.make_train(self.config)
+        train = baseline.make_train(self.config)
         self.compiled, self.compile_s = compile_ahead(train, jax.random.PRNGKey(0))
 
     def run(self) -> tuple[float, float]:
@@ -352,9 +352,9 @@ def sizes_of(c) -> dict:
 
 
 def profile_baseline(baseline: Baseline, sizes: dict, updates: int, repeats: int) -> dict:
-    from benchmarks import purejaxrl_ppo
+    from agents.baseline import make_env
 
-    env = purejaxrl_ppo.make_env()
+    env = make_env()
     fn = _env_only_fn(env, sizes["num_envs"], sizes["num_steps"], env.num_actions(), True)
     pieces = {
         "env": (fn, jax.random.PRNGKey(1)),

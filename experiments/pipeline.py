@@ -106,7 +106,7 @@ class ExperimentConfig:
     # 2-core CPU two programs fill XLA's thread pool better than one, 1.2-1.4x sooner than
     # one after the other, with the same results; 1: one at a time
     workers: int = 2
-    # time the PureJaxRL-style baseline learner (benchmarks.purejaxrl_ppo) for ~30 s at the
+    # time the PureJaxRL-style baseline learner (agents.baseline) for ~30 s at the
     # end, and print its steps/s beside the run time: run times differ between machines
     machine_baseline: bool = True
     # The compared agents' PPO (--steps: total_timesteps). Each run sets reward_mode and
@@ -353,7 +353,7 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     phases.write_gif(cfg, out, runs, trained)
     results = phases.assemble(cfg, out, runs, checker_report, time.perf_counter() - start)
     if cfg.machine_baseline:  # after the run, so that it does not delay any phase
-        from benchmarks.purejaxrl_ppo import machine_baseline
+        from agents.baseline import machine_baseline
 
         results["timing"]["machine_baseline"] = machine_baseline()
     paths = phases.write_outputs(cfg, out, results, runs)  # f
