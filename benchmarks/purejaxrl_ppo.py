@@ -30,19 +30,32 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     c = DEFAULT_CONFIG
-    parser.add_argument("--timesteps", type=integer, default=c["TOTAL_TIMESTEPS"],
-                        help="env steps to train for, rounded down to whole updates")
+    parser.add_argument(
+        "--timesteps",
+        type=integer,
+        default=c["TOTAL_TIMESTEPS"],
+        help="env steps to train for, rounded down to whole updates",
+    )
     parser.add_argument("--num-envs", type=integer, default=c["NUM_ENVS"], help="parallel envs")
-    parser.add_argument("--num-steps", type=integer, default=c["NUM_STEPS"],
-                        help="rollout length per update")
-    parser.add_argument("--update-epochs", type=integer, default=c["UPDATE_EPOCHS"],
-                        help="epochs over each batch")
-    parser.add_argument("--num-minibatches", type=integer, default=c["NUM_MINIBATCHES"],
-                        help="minibatches per epoch")
+    parser.add_argument(
+        "--num-steps", type=integer, default=c["NUM_STEPS"], help="rollout length per update"
+    )
+    parser.add_argument(
+        "--update-epochs", type=integer, default=c["UPDATE_EPOCHS"], help="epochs over each batch"
+    )
+    parser.add_argument(
+        "--num-minibatches",
+        type=integer,
+        default=c["NUM_MINIBATCHES"],
+        help="minibatches per epoch",
+    )
     parser.add_argument("--seed", type=integer, default=0, help="PRNG seed of the run")
-    parser.add_argument("--env", default=DEFAULT_ENV,
-                        help="a Navix-* id (PureJaxRL's setting) or a jaxgrid id, e.g. "
-                             "MiniGrid-DoorKey-8x8-v0 (the same learner on jaxgrid)")
+    parser.add_argument(
+        "--env",
+        default=DEFAULT_ENV,
+        help="a Navix-* id (PureJaxRL's setting) or a jaxgrid id, e.g. "
+        "MiniGrid-DoorKey-8x8-v0 (the same learner on jaxgrid)",
+    )
     args = parser.parse_args(argv)
     if not args.env.startswith("Navix-"):
         import jaxgrid
@@ -54,14 +67,21 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     batch = args.num_envs * args.num_steps
     if args.timesteps < batch:
-        parser.error(f"--timesteps ({args.timesteps}) must cover one update of --num-envs x "
-                     f"--num-steps ({batch}) env steps")
+        parser.error(
+            f"--timesteps ({args.timesteps}) must cover one update of --num-envs x "
+            f"--num-steps ({batch}) env steps"
+        )
     if batch % args.num_minibatches:
-        parser.error(f"--num-minibatches ({args.num_minibatches}) must divide --num-envs x "
-                     f"--num-steps ({batch})")
+        parser.error(
+            f"--num-minibatches ({args.num_minibatches}) must divide --num-envs x "
+            f"--num-steps ({batch})"
+        )
     if args.env.startswith("Navix-"):
-        require("navix", f"--env {args.env}",
-                instead="pass --env MiniGrid-DoorKey-8x8-v0 (the same learner on jaxgrid)")
+        require(
+            "navix",
+            f"--env {args.env}",
+            instead="pass --env MiniGrid-DoorKey-8x8-v0 (the same learner on jaxgrid)",
+        )
     res = measure(
         total_timesteps=args.timesteps,
         num_envs=args.num_envs,

@@ -24,8 +24,13 @@ from benchmarks.cli import integer
 from benchmarks.train_speed import device_description, make_checker, make_config
 from checker.cli import run_main
 
-DEFAULTS = {"env": "TwoRooms-v0", "num_envs": 128, "num_steps": 64, "epochs": 4,
-            "minibatches": 4}  # fmt: skip  (the experiments' PPO sizes)
+DEFAULTS = {
+    "env": "TwoRooms-v0",
+    "num_envs": 128,
+    "num_steps": 64,
+    "epochs": 4,
+    "minibatches": 4,
+}  # fmt: skip  (the experiments' PPO sizes)
 
 
 class Agents:

@@ -379,37 +379,82 @@ def _parser() -> argparse.ArgumentParser:
         description="Env steps/s of the fused PPO per reward mode vs the PureJaxRL baseline.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES, metavar="MODE",
-                   help=f"reward modes to time, of {', '.join(MODES)}")
+    p.add_argument(
+        "--modes",
+        nargs="+",
+        default=list(MODES),
+        choices=MODES,
+        metavar="MODE",
+        help=f"reward modes to time, of {', '.join(MODES)}",
+    )
     p.add_argument("--env", default=DEFAULTS["env"], help="jaxgrid env id")
-    p.add_argument("--timesteps", type=integer, default=DEFAULTS["timesteps"],
-                   help="env steps timed per mode, over all repeats")
+    p.add_argument(
+        "--timesteps",
+        type=integer,
+        default=DEFAULTS["timesteps"],
+        help="env steps timed per mode, over all repeats",
+    )
     p.add_argument("--num-envs", type=integer, default=DEFAULTS["num_envs"], help="parallel envs")
-    p.add_argument("--num-steps", type=integer, default=DEFAULTS["num_steps"],
-                   help="rollout length per update")
-    p.add_argument("--epochs", type=integer, default=DEFAULTS["epochs"],
-                   help="epochs over each batch")
-    p.add_argument("--minibatches", type=integer, default=DEFAULTS["minibatches"],
-                   help="minibatches per epoch")
-    p.add_argument("--repeats", type=integer, default=DEFAULTS["repeats"],
-                   help="timed calls per mode; sps and ratio are medians")
-    p.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=True,
-                   help="also time the PureJaxRL baseline (needs navix)")
-    p.add_argument("--baseline-network", action="store_true", default=False,
-                   help="also time the baseline's learner (PureJaxRL MLP) on jaxgrid's "
-                   f"{JAXGRID_DOORKEY}, in the same rounds")
-    p.add_argument("--profile", action="store_true", default=False,
-                   help="add a per-update time breakdown to each line")
-    p.add_argument("--ops", type=integer, default=0, metavar="N",
-                   help="add the N costliest XLA kernels and model places of an update "
-                   "(profiler trace; 0: off)")
-    p.add_argument("--mlp", action="store_true", default=False,
-                   help="time the policy without its convolution (PPOConfig.conv_channels=())")
-    p.add_argument("--cell-dim", type=integer, default=PPOConfig().cell_dim, metavar="N",
-                   help="features per view cell (PPOConfig.cell_dim)")
-    p.add_argument("--film-codes", action="store_true",
-                   help="the sentence also scales the cells' one-hot codes "
-                        "(PPOConfig.film_codes)")
+    p.add_argument(
+        "--num-steps", type=integer, default=DEFAULTS["num_steps"], help="rollout length per update"
+    )
+    p.add_argument(
+        "--epochs", type=integer, default=DEFAULTS["epochs"], help="epochs over each batch"
+    )
+    p.add_argument(
+        "--minibatches", type=integer, default=DEFAULTS["minibatches"], help="minibatches per epoch"
+    )
+    p.add_argument(
+        "--repeats",
+        type=integer,
+        default=DEFAULTS["repeats"],
+        help="timed calls per mode; sps and ratio are medians",
+    )
+    p.add_argument(
+        "--baseline",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also time the PureJaxRL baseline (needs navix)",
+    )
+    p.add_argument(
+        "--baseline-network",
+        action="store_true",
+        default=False,
+        help="also time the baseline's learner (PureJaxRL MLP) on jaxgrid's "
+        f"{JAXGRID_DOORKEY}, in the same rounds",
+    )
+    p.add_argument(
+        "--profile",
+        action="store_true",
+        default=False,
+        help="add a per-update time breakdown to each line",
+    )
+    p.add_argument(
+        "--ops",
+        type=integer,
+        default=0,
+        metavar="N",
+        help="add the N costliest XLA kernels and model places of an update "
+        "(profiler trace; 0: off)",
+    )
+    p.add_argument(
+        "--mlp",
+        action="store_true",
+        default=False,
+        help="time the policy without its convolution (PPOConfig.conv_channels=())",
+    )
+    p.add_argument(
+        "--cell-dim",
+        type=integer,
+        default=PPOConfig().cell_dim,
+        metavar="N",
+        help="features per view cell (PPOConfig.cell_dim)",
+    )
+    p.add_argument(
+        "--film-codes",
+        action="store_true",
+        help="the sentence also scales the cells' one-hot codes (PPOConfig.film_codes)",
+    )
     p.add_argument("--out", default=None, help="also write the JSON lines to this file")
     return p  # fmt: skip
 

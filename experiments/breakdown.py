@@ -181,8 +181,11 @@ def print_rows(cfg: BreakdownConfig, rows: list[dict], checkpoint: dict) -> None
     print(f"{cfg.run}: checkpoint after {c['chunks']} of {c['num_chunks']} chunks ({state}"
           f"{older})")  # fmt: skip
     print(f"{cfg.run}: violation % / success % over {cfg.episodes} episodes per agent")
-    swept = [k for k in rows[0]
-             if k not in ("seed", "violation_rate", "success_rate", "groups", "stages")]
+    swept = [
+        k
+        for k in rows[0]
+        if k not in ("seed", "violation_rate", "success_rate", "groups", "stages")
+    ]
     labels = [f"seed {r['seed']}" + "".join(f" {k}={r[k]:g}" for k in swept) for r in rows]
     width = max(len(n) for n in [*names, "all"])
     print(" " * width + "  " + "  ".join(f"{lab:>14}" for lab in labels))
@@ -211,5 +214,14 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     cli.run_main(main, PROG)
 
-__all__ = ["BreakdownConfig", "checker_of", "dividing_walls", "groups", "main", "print_rows",
-           "replayed_checkpoint", "run", "stage_tracker"]
+__all__ = [
+    "BreakdownConfig",
+    "checker_of",
+    "dividing_walls",
+    "groups",
+    "main",
+    "print_rows",
+    "replayed_checkpoint",
+    "run",
+    "stage_tracker",
+]

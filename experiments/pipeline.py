@@ -193,10 +193,10 @@ class ExperimentConfig:
             raise ValueError(f"{me}.out {self.out}: not writable, it is a file (an output "
                              "directory is needed)")  # fmt: skip
         settings = self.checker_train
-        if self.checker is None and self.checker_kind == "window" and settings.training_rows(
-            self.checker_samples
-        ) < (
-            settings.batch_size
+        if (
+            self.checker is None
+            and self.checker_kind == "window"
+            and settings.training_rows(self.checker_samples) < (settings.batch_size)
         ):
             raise ValueError(
                 f"{me}.checker_samples {self.checker_samples} leaves "

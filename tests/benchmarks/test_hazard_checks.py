@@ -19,7 +19,8 @@ def test_oracle_figures_cover_every_type_and_obey():
         assert 0.0 <= f["unconstrained_violated_pct"] <= 100.0
     kinds = figures["sequential"]["by_kind"]
     assert set(kinds) <= set(hazard_checks.KINDS) and {k.split()[0] for k in kinds} == {
-        "after", "before"
+        "after",
+        "before",
     }
     assert sum(k["episodes"] for k in kinds.values()) == figures["sequential"]["episodes"]
 

@@ -108,8 +108,13 @@ def test_profile_breakdown_from_the_public_api():
     for key in ("optimisation_s", "checker_s", "policy_and_bookkeeping_s",
                 "backward_optimizer_gae_shuffle_s"):  # fmt: skip
         assert math.isfinite(parts[key])
-    assert set(parts["fractions"]) == {"env_step", "policy_and_bookkeeping", "checker",
-                                       "loss_forward", "backward_optimizer_gae_shuffle"}
+    assert set(parts["fractions"]) == {
+        "env_step",
+        "policy_and_bookkeeping",
+        "checker",
+        "loss_forward",
+        "backward_optimizer_gae_shuffle",
+    }
     assert "baseline_breakdown" not in line
 
 

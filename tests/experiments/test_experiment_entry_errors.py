@@ -18,12 +18,6 @@ from jaxgrid import rundir
 SCENARIOS = "ThreeRoomsKey-v0, TwoRooms-v0, TwoRoomsLava-v0"
 
 
-
-
-
-
-
-
 @pytest.mark.parametrize("main", [shield_judges.main, false_alarms.main, breakdown.main,
                                   label_timing.main])  # fmt: skip
 def test_help_exits_0(main, capsys):
@@ -71,8 +65,11 @@ def test_an_unwritable_out_file_is_refused_before_any_work(command, tmp_path, ca
     run = tmp_path / "run"
     run.mkdir()
     (run / "run.json").write_text("{}")
-    given = {"shield_judges": [], "breakdown": ["--run", str(run)],
-             "false_alarms": ["--checker", fake_checker(tmp_path / "w", lookahead=1)]}
+    given = {
+        "shield_judges": [],
+        "breakdown": ["--run", str(run)],
+        "false_alarms": ["--checker", fake_checker(tmp_path / "w", lookahead=1)],
+    }
     main = {"shield_judges": shield_judges.main, "false_alarms": false_alarms.main,
             "breakdown": breakdown.main}[command]  # fmt: skip
     for out, message in ((a_file / "r.json", "is a file, not a directory"),

@@ -60,16 +60,22 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
     # the shield's own checker learns from streams half of whose actions are the oracle's
     assert cfg.shield_guided == 0.5 and cfg.memory_checker.guided == 0.0
     assert preset(two_rooms.SCENARIO).shield_guided is None
-    with pytest.raises(ValueError, match="shield_guided: the shield's own checker is a memory "
-                                         "checker, and two_rooms trains a window checker"):
+    with pytest.raises(
+        ValueError,
+        match="shield_guided: the shield's own checker is a memory "
+        "checker, and two_rooms trains a window checker",
+    ):
         dataclasses.replace(preset(two_rooms.SCENARIO), shield_guided=0.5)
     # its checker learns the step into each frame; the window checkers' just-before label
     assert cfg.memory_checker.label == "into"
     assert preset(two_rooms.SCENARIO).memory_checker.label == "next"
     with pytest.raises(ValueError, match="ExperimentConfig.checker_kind must be one of"):
         dataclasses.replace(cfg, checker_kind="lstm")
-    with pytest.raises(ValueError, match="checker_actions: only a memory checker reads actions, "
-                                         "and two_rooms trains a window checker"):
+    with pytest.raises(
+        ValueError,
+        match="checker_actions: only a memory checker reads actions, "
+        "and two_rooms trains a window checker",
+    ):
         dataclasses.replace(preset(two_rooms.SCENARIO), checker_actions=True)
     with pytest.raises(ValueError, match="ExperimentConfig.checker_actions must be a bool"):
         dataclasses.replace(cfg, checker_actions=1)
@@ -82,8 +88,7 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
         (["--memory-streams", "4"], "--memory-batch-streams (8) exceeds --memory-streams (4)"),
         (["--memory-lr", "0"], "--memory-lr must be > 0"),
         (["--memory-label", "before"], "--memory-label must be one of ('next', 'into')"),
-        (["--shield-guided", "1.5"], "--shield-guided must be None or a share in [0, 1], got "
-                                     "1.5"),
+        (["--shield-guided", "1.5"], "--shield-guided must be None or a share in [0, 1], got 1.5"),
     ],
 )
 def test_bad_memory_flags_are_usage_errors_before_any_compile(
@@ -209,8 +214,14 @@ def test_the_shield_trains_with_its_own_checker_and_the_others_with_the_experime
 
     monkeypatch.setattr(pipeline, "make_checker", lambda cfg, out, keep, cancel, reused: (
         "experiment's", {"test": {}}))  # fmt: skip
-    monkeypatch.setattr(memory_phase, "train_memory_checker", lambda cfg, out, name, guided: (
-        made.update(name=name, guided=guided) or "shield's", {"test": {}, "guided": guided}))
+    monkeypatch.setattr(
+        memory_phase,
+        "train_memory_checker",
+        lambda cfg, out, name, guided: (
+            made.update(name=name, guided=guided) or "shield's",
+            {"test": {}, "guided": guided},
+        ),
+    )
     monkeypatch.setattr(phases, "precompile", lambda config, checker, **kw: compiled.update(
         {config.reward_mode: checker}))  # fmt: skip
     monkeypatch.setattr(phases, "train_agents", lambda cfg, out, mode, trained, compiler,
