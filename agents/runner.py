@@ -137,9 +137,9 @@ def run(
         resume: continue from the newest checkpoint in ``out_dir`` whose files and logged
             records match their digests (:mod:`agents.checkpoint`; newer ones are deleted
             with a message and their chunks redone); a ``ValueError`` if it was made with
-            another config or other seeds, a :class:`ResumeError` if it was made with
-            another checker or no checkpoint matches; ``False`` deletes its checkpoints and
-            starts over.
+            another config or other seeds, a :class:`~agents.checkpoint.ResumeError` if it
+            was made with another checker or no checkpoint matches; ``False`` deletes its
+            checkpoints and starts over.
         multi_host: split the env batch over the devices of every process that joined
             ``jax.distributed`` (:mod:`agents.devices`); each process calls ``run`` alike.
         final_episodes: if > 0, a final evaluation over this many fixed-seed episodes.
@@ -161,10 +161,11 @@ def run(
     Raises:
         ValueError: bad configuration (before any compilation), or a resume of ``out_dir``
             with another configuration or other seeds.
-        ResumeError: ``out_dir`` holds a checkpoint that cannot be resumed (see ``resume``).
+        agents.checkpoint.ResumeError: ``out_dir`` holds a checkpoint that cannot be resumed
+            (see ``resume``).
         Cancelled: ``cancel`` was set.
-        CheckpointError: a checkpoint could not be saved; the message names the last good
-            one, which is kept.
+        agents.checkpoint.CheckpointError: a checkpoint could not be saved; the message names
+            the last good one, which is kept.
         NonFiniteError: a chunk produced a non-finite loss or parameters; the message names
             the update and the last good checkpoint's directory, or says that none was
             written yet; that checkpoint is left untouched.
