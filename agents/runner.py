@@ -1,4 +1,4 @@
-"""Drive training from the host: seeds, devices, progress, JSONL logs, checkpoints, resume.
+"""Drive training from the host: seeds, sweeps, progress, JSONL logs, checkpoints, resume.
 
 :func:`run` executes the same pure pieces as :func:`agents.train.make_train`, one chunk of
 ``eval_every`` updates at a time, ``jit(vmap(...))`` over seeds, so that metrics reach the
@@ -7,55 +7,36 @@ written between chunks, and a killed run resumes where its last checkpoint left 
 same final parameters as an uninterrupted run (the whole runner state, RNG and environments
 included, is saved).
 
-**Devices.** With more than one local device, the environment batch (every leaf of
-:class:`agents.rollout.EnvCarry`) is sharded along its env axis over a 1-D ``jax.sharding.Mesh``
-named ``"envs"``; parameters, optimiser state and keys are replicated. XLA partitions the
-rollout and inserts the collectives of the minibatch shuffle. For several hosts, call
-``jax.distributed.initialize()`` in every process before :func:`run`: the mesh is then
-built over ``jax.devices()`` (all hosts) instead of the local ones (``multi_host=True``).
-Every process calls :func:`run` with the same arguments and gets the same records and
-(replicated) parameters, the same numbers as one process with as many devices; process 0
-alone writes ``out_dir``'s logs (a directory all hosts share) and shows progress. The
-returned ``runner``'s env leaves stay split over the processes
-(``jax.experimental.multihost_utils.process_allgather`` gathers them).
+The loop's pieces live beside it: :mod:`agents.devices` (the env batch split over several
+devices or hosts, ``multi_host``), :mod:`agents.programs` (the compiled programs, kept
+between calls; :func:`agents.programs.precompile`) and :mod:`agents.checkpoint` (saves,
+digests, resume points and ``run.json``).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import itertools
-import json
 import os
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.experimental import multihost_utils
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from agents.checkpoint import DIGESTS, CheckpointError, ResumeError
-from agents.checkpoint import kept as _kept
-from agents.checkpoint import make_manager as _checkpoint_manager
-from agents.checkpoint import record_digests as _record_digests  # noqa: F401 (re-exported)
-from agents.checkpoint import restore as _restore
-from agents.checkpoint import resume_point as _resume_point
-from agents.checkpoint import save as _save_checkpoint
-from agents.checkpoint import verified_step as _verified_step
+from agents import checkpoint
 from agents.config import PPOConfig, check_sweep
-from agents.evaluation import summarise
-from agents.train import Learner, RunnerState, make_learner
+from agents.devices import to_host
+from agents.programs import programs_for
+from agents.train import Learner, make_learner
 from jaxgrid import io
 
-__all__ = ["DIGESTS", "EARLY_FRACTION", "Cancelled", "CheckpointError", "NonFiniteError",
-           "ResumeError", "chunk_records", "early_updates", "load_agents", "precompile",
-           "run"]  # fmt: skip
+__all__ = ["EARLY_FRACTION", "Cancelled", "NonFiniteError", "chunk_records", "early_updates",
+           "load_agents", "run"]  # fmt: skip
 
 
 class NonFiniteError(FloatingPointError):
@@ -67,55 +48,6 @@ class Cancelled(Exception):
     checkpoints written so far are kept, so the run resumes where it stopped."""
 
 
-def _mesh(num_envs: int, multi_host: bool = False) -> Mesh | None:
-    devices = jax.devices() if multi_host else jax.local_devices()
-    if len(devices) == 1:
-        return None
-    if num_envs % len(devices):
-        raise ValueError(
-            f"PPOConfig.num_envs ({num_envs}) must be divisible by the number of devices "
-            f"({len(devices)}) to shard the environment batch"
-        )
-    return Mesh(np.asarray(devices), ("envs",))
-
-
-def _shardings(runner: RunnerState, mesh: Mesh):
-    """Env leaves split on axis 1 (axis 0 is the seed axis); everything else replicated."""
-    replicated = NamedSharding(mesh, PartitionSpec())
-    split = NamedSharding(mesh, PartitionSpec(None, "envs"))
-    return runner.replace(
-        params=jax.tree.map(lambda _: replicated, runner.params),
-        opt_state=jax.tree.map(lambda _: replicated, runner.opt_state),
-        lagrange=replicated,
-        key=replicated,
-        update=replicated,
-        env=jax.tree.map(lambda _: split, runner.env),
-        hparams=jax.tree.map(lambda _: replicated, runner.hparams),
-        success=replicated,
-    )
-
-
-def _finite(tree) -> jax.Array:
-    leaves = [
-        jnp.all(jnp.isfinite(x))
-        for x in jax.tree.leaves(tree)
-        if jnp.issubdtype(x.dtype, jnp.floating)
-    ]
-    return jnp.all(jnp.stack(leaves))
-
-
-def _host(x) -> Any:
-    """``x`` as numpy arrays. An array split over several processes is gathered from all of
-    them: a collective, which every process reaches in the same order (same program)."""
-
-    def get(a):
-        if isinstance(a, jax.Array) and not (a.is_fully_addressable or a.is_fully_replicated):
-            return np.asarray(multihost_utils.process_allgather(a, tiled=True))
-        return np.asarray(a)
-
-    return jax.tree.map(get, x)
-
-
 EARLY_FRACTION = 0.2  # "early in training": training violations are also split there
 
 
@@ -125,7 +57,11 @@ def early_updates(config: PPOConfig) -> int:
 
 
 def chunk_records(
-    config: PPOConfig, chunk: int, seeds: Sequence[int], metrics, totals: np.ndarray,
+    config: PPOConfig,
+    chunk: int,
+    seeds: Sequence[int],
+    metrics,
+    totals: np.ndarray,
     swept: dict[str, Sequence[float]] | None = None,
 ) -> list[dict]:
     """One JSON-serialisable record per agent for chunk ``chunk`` (0-based); ``seeds`` and
@@ -201,11 +137,11 @@ def run(
         resume: continue from the newest checkpoint in ``out_dir`` whose files and logged
             records match their digests (:mod:`agents.checkpoint`; newer ones are deleted
             with a message and their chunks redone); a ``ValueError`` if it was made with
-            another config or other seeds, a :class:`ResumeError` if it was made with
-            another checker or no checkpoint matches; ``False`` deletes its checkpoints and
-            starts over.
+            another config or other seeds, a :class:`~agents.checkpoint.ResumeError` if it
+            was made with another checker or no checkpoint matches; ``False`` deletes its
+            checkpoints and starts over.
         multi_host: split the env batch over the devices of every process that joined
-            ``jax.distributed`` (module docstring); each process calls ``run`` alike.
+            ``jax.distributed`` (:mod:`agents.devices`); each process calls ``run`` alike.
         final_episodes: if > 0, a final evaluation over this many fixed-seed episodes.
         max_chunks: stop after this many chunks in this call (simulates an interruption;
             the checkpoint lets a later call resume).
@@ -225,10 +161,11 @@ def run(
     Raises:
         ValueError: bad configuration (before any compilation), or a resume of ``out_dir``
             with another configuration or other seeds.
-        ResumeError: ``out_dir`` holds a checkpoint that cannot be resumed (see ``resume``).
+        agents.checkpoint.ResumeError: ``out_dir`` holds a checkpoint that cannot be resumed
+            (see ``resume``).
         Cancelled: ``cancel`` was set.
-        CheckpointError: a checkpoint could not be saved; the message names the last good
-            one, which is kept.
+        agents.checkpoint.CheckpointError: a checkpoint could not be saved; the message names
+            the last good one, which is kept.
         NonFiniteError: a chunk produced a non-finite loss or parameters; the message names
             the update and the last good checkpoint's directory, or says that none was
             written yet; that checkpoint is left untouched.
@@ -246,7 +183,7 @@ def run(
     swept, idents = _agents(sweep, seeds)
     ident = functools.partial(_ident, names=tuple(sweep))
     seeds = [agent[0] for agent in idents]  # the seed of each agent
-    programs = _programs(config, checker, multi_host, tuple(sweep))
+    programs = programs_for(config, checker, multi_host, tuple(sweep))
     learner: Learner = programs.learner
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
@@ -266,13 +203,13 @@ def run(
     done_chunks, records, totals = 0, [], np.zeros(len(seeds), np.int64)
     try:
         if out is not None and checkpoint_every:
-            manager = _checkpoint_manager(out / "checkpoints")
+            manager = checkpoint.make_manager(out / "checkpoints")
         runner = None
         if manager is not None and manager.latest_step() is not None:
             if resume:
-                _check_run_info(out, config, seeds, checker, sweep)
-                done_chunks, records = _resume_point(manager, out, idents, ident)
-                runner = _restore(manager, done_chunks, abstract, shardings)
+                checkpoint.check_run_info(out, config, seeds, checker, sweep)
+                done_chunks, records = checkpoint.resume_point(manager, out, idents, ident)
+                runner = checkpoint.restore(manager, done_chunks, abstract, shardings)
                 for r in records:
                     i = idents.index(ident(r))
                     totals[i] = max(totals[i], r["train/cum_violations"])
@@ -284,8 +221,8 @@ def run(
         if runner is None:
             runner = init(keys, hparams)
         if out is not None and primary:
-            _write_run_info(out, config, seeds, checker, sweep)
-            io.write_jsonl(out / "metrics.jsonl", records)
+            checkpoint.write_run_info(out, config, seeds, checker, sweep)
+            io.write_jsonl(out / checkpoint.METRICS, records)
 
         bar = _progress(
             config.num_chunks, done_chunks, progress and primary, desc or config.reward_mode
@@ -297,25 +234,25 @@ def run(
         )
         for c in range(done_chunks, stop):
             if cancel is not None and cancel.is_set():
-                raise Cancelled(f"stopped before chunk {c + 1}; {_kept(manager, out)}")
+                raise Cancelled(f"stopped before chunk {c + 1}; {checkpoint.kept(manager, out)}")
             new_runner, metrics, finite = chunk(runner)
-            metrics, finite = _host(metrics), _host(finite)
+            metrics, finite = to_host(metrics), to_host(finite)
             if not finite.all():
                 bad = [idents[i] for i in np.flatnonzero(~finite)]
                 bad = [i[0] for i in bad] if not sweep else [_name(i, sweep) for i in bad]
                 raise NonFiniteError(
                     f"non-finite loss or parameters within updates {c * config.eval_every + 1}-"
-                    f"{(c + 1) * config.eval_every} (seeds {bad}); {_kept(manager, out)}"
+                    f"{(c + 1) * config.eval_every} (seeds {bad}); {checkpoint.kept(manager, out)}"
                 )
             runner = new_runner
             totals += metrics["train"]["violations"].sum(axis=1).astype(np.int64)
             new = chunk_records(config, c, seeds, metrics, totals, swept)
             records.extend(new)
             if out is not None and primary:
-                io.append_jsonl(out / "metrics.jsonl", new)
+                io.append_jsonl(out / checkpoint.METRICS, new)
             last = c + 1 == config.num_chunks
             if manager is not None and ((c + 1) % checkpoint_every == 0 or last):
-                _save_checkpoint(manager, c + 1, runner, out, records, primary)
+                checkpoint.save(manager, c + 1, runner, out, records, primary)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(
@@ -340,209 +277,10 @@ def run(
     result["complete"] = stop == config.num_chunks
     if final_episodes:
         final = programs.executable("final", len(seeds), final_episodes)
-        result["final"] = _host(final(runner.params, runner.hparams))
+        result["final"] = to_host(final(runner.params, runner.hparams))
         result["final_episodes"] = final_episodes
     result["wall_s"] = time.perf_counter() - start
     return result
-
-
-class _Programs:
-    """The jitted pieces of :func:`run` for one (config, checker, devices) combination.
-
-    Cached per process (a few entries), so that calling :func:`run` again with the same
-    configuration, e.g. to resume, to add seeds or from a sweep, does not compile again.
-    :meth:`warm` compiles them ahead of time for a number of agents (:func:`precompile`).
-    """
-
-    def __init__(self, config: PPOConfig, checker, multi_host: bool, swept: tuple = ()):
-        learner = make_learner(config, checker)
-        mesh = _mesh(config.num_envs, multi_host)
-        hparams = {n: jnp.zeros((1,), jnp.float32) for n in swept}
-        abstract = jax.eval_shape(jax.vmap(learner.init), jax.random.PRNGKey(0)[None], hparams)
-        # Explicit shardings on one device too: the arrays orbax restores are committed to
-        # a device, the output of a jit without out_shardings is not, and jit would compile
-        # the chunk again for the resumed (committed) runner state.
-        devices = jax.devices() if multi_host else jax.local_devices()
-        one = Mesh(np.asarray(devices[:1]), ("envs",))
-        shardings = _shardings(abstract, mesh if mesh is not None else one)
-
-        def chunk_fn(runner):
-            runner, metrics = jax.vmap(learner.chunk)(runner)
-            finite = jax.vmap(lambda r, m: _finite((r.params, m["train"]["loss"])))(runner, metrics)
-            return runner, metrics, finite
-
-        self.checker = checker  # keeps id(checker) of the cache key alive
-        self.swept = swept
-        self.learner, self.mesh, self.shardings = learner, mesh, shardings
-        self.init = jax.jit(jax.vmap(learner.init), out_shardings=shardings)
-        self.chunk = jax.jit(
-            chunk_fn, in_shardings=(shardings,), out_shardings=(shardings, None, None)
-        )
-        self._final: dict[int, Any] = {}
-        self._ready: dict[tuple, Any] = {}  # (name, agents, ...) -> compiled executable
-        self._warming = threading.Lock()  # held while warm() compiles
-
-    def final(self, num_episodes: int):
-        if num_episodes not in self._final:
-            config, learner = self.learner.config, self.learner
-            key = jax.random.PRNGKey(config.eval_seed + 1)
-            def final(params, hparams):
-                out = summarise(learner.evaluate(params, key, num_episodes, hparams=hparams))
-                if learner.shield is not None:  # the policy alone, too
-                    off = learner.evaluate(params, key, num_episodes, shielded=False)
-                    out["unshielded"] = summarise(off)
-                return out
-
-            self._final[num_episodes] = jax.jit(jax.vmap(final))
-        return self._final[num_episodes]
-
-    def warm(self, agents: int, final_episodes: int = 0, train: bool = True) -> None:
-        """Compile ``init`` and ``chunk`` (if ``train``) and, if ``final_episodes``,
-        ``final`` for ``agents``."""
-        with self._warming:
-            key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
-            keys = jax.ShapeDtypeStruct((agents, *key.shape), key.dtype)
-            hparams = {n: jax.ShapeDtypeStruct((agents,), jnp.float32) for n in self.swept}
-            abstract = jax.eval_shape(jax.vmap(self.learner.init), keys, hparams)
-            lowerings = {}
-            if train:
-                lowerings["init", agents] = lambda: self.init.lower(keys, hparams)
-                lowerings["chunk", agents] = lambda: self.chunk.lower(abstract)
-            if final_episodes:
-                final = self.final(final_episodes)
-                lowerings["final", agents, final_episodes] = lambda: final.lower(
-                    abstract.params, abstract.hparams
-                )
-            for name, lower in lowerings.items():  # each program once, whoever asked first
-                if name not in self._ready:
-                    self._ready[name] = lower().compile()
-
-    def executable(self, name: str, agents: int, *args):
-        """The compiled ``name`` program for ``agents`` if :meth:`warm` made it (waiting for
-        a warm in progress), else the jitted function, which compiles on its first call."""
-        with self._warming:
-            ready = self._ready.get((name, agents, *args))
-        if ready is not None:
-            return ready
-        return self.final(*args) if name == "final" else getattr(self, name)
-
-
-_PROGRAMS: OrderedDict = OrderedDict()
-_MAX_PROGRAMS = 8  # an experiment's behaviour agent and its six reward modes
-_PROGRAMS_LOCK = threading.Lock()  # precompile() may run in another thread
-
-
-def _programs(config: PPOConfig, checker, multi_host: bool, swept: tuple = ()) -> _Programs:
-    devices = jax.devices() if multi_host else jax.local_devices()
-    key = (config, None if checker is None else id(checker), tuple(d.id for d in devices), swept)
-    with _PROGRAMS_LOCK:
-        if key in _PROGRAMS:
-            _PROGRAMS.move_to_end(key)  # config and checker were validated when it was built
-            return _PROGRAMS[key]
-        programs = _Programs(config, checker, multi_host, swept)
-        _PROGRAMS[key] = programs
-        while len(_PROGRAMS) > _MAX_PROGRAMS:
-            _PROGRAMS.popitem(last=False)
-        return programs
-
-
-def precompile(
-    config: PPOConfig,
-    checker=None,
-    *,
-    seeds: Sequence[int] = (0,),
-    final_episodes: int = 0,
-    multi_host: bool = False,
-    sweep: Mapping[str, Sequence[float]] | None = None,
-    out_dir: str | os.PathLike | None = None,
-) -> None:
-    """Compile the programs of :func:`run` with these arguments, so that ``run`` spends no
-    time compiling. Thread-safe: XLA's compiler releases the GIL, so a thread can compile one
-    run's programs while another run trains (``experiments.pipeline`` does); a ``run`` that
-    needs programs still compiling here waits for them. Same results as without it.
-    Where ``out_dir`` already records a checkpoint of the last chunk, only the final
-    evaluation compiles: resuming a finished run trains nothing.
-    """
-    sweep = check_sweep(sweep, config)
-    agents = len(seeds) * int(np.prod([len(v) for v in sweep.values()]))
-    train = out_dir is None or not _finished(Path(out_dir), config)
-    _programs(config, checker, multi_host, tuple(sweep)).warm(agents, final_episodes, train)
-
-
-def _finished(out: Path, config: PPOConfig) -> bool:
-    """Whether ``out``'s checkpoint digests list the run's last chunk (a guess for
-    :func:`precompile`: :func:`run` still verifies the files, and compiles what it needs)."""
-    try:
-        return str(config.num_chunks) in io.read_json(out / DIGESTS)
-    except (FileNotFoundError, ValueError):
-        return False
-
-
-def _checker_sha256(checker) -> str | None:
-    """Identifies the checker's parameters, so that a resume with another checker is refused."""
-    if checker is None:
-        return None
-    from flax import serialization
-
-    from jaxgrid.rundir import sha256_bytes
-
-    return sha256_bytes(serialization.to_bytes(jax.device_get(checker.params)))
-
-
-def _run_info(config: PPOConfig, seeds: list[int], checker=None, sweep=None) -> dict:
-    fields = {k: v for k, v in dataclasses.asdict(config).items() if k != "seed"}
-    info = {"config": fields, "seeds": seeds, "checker_sha256": _checker_sha256(checker)}
-    if sweep:  # absent without a sweep: run.json as before
-        info["sweep"] = {n: [float(v) for v in values] for n, values in sweep.items()}
-    return json.loads(json.dumps(info, default=repr))
-
-
-def _write_run_info(
-    out: Path, config: PPOConfig, seeds: list[int], checker=None, sweep=None
-) -> None:
-    io.write_json(out / "run.json", _run_info(config, seeds, checker, sweep))
-
-
-def _check_run_info(
-    out: Path, config: PPOConfig, seeds: list[int], checker=None, sweep=None
-) -> None:
-    """Refuse to resume a run made with another configuration or other seeds (``ValueError``)
-    and a damaged, missing or other checker's ``run.json`` (:class:`ResumeError`)."""
-    path = out / "run.json"
-    start_over = "delete it to start over"
-    try:
-        saved = io.read_json(path)
-        saved["seeds"], saved["config"]
-    except FileNotFoundError:
-        raise ResumeError(f"{path}: missing, so the checkpoints in {out / 'checkpoints'} cannot "
-                          f"be matched to a configuration; {start_over}") from None  # fmt: skip
-    except (ValueError, TypeError, KeyError) as e:
-        raise ResumeError(f"{path}: damaged ({e}); {start_over}") from None
-    now = _run_info(config, seeds, checker, sweep)
-    if saved.get("checker_sha256") != now["checker_sha256"]:
-        raise ResumeError(f"{path}: the run in {out} was made with another checker; "
-                          f"{start_over}")  # fmt: skip
-    if saved.get("sweep") != now.get("sweep"):
-        raise ValueError(
-            f"cannot resume {out}: it was run with sweep {saved.get('sweep')}, not "
-            f"{now.get('sweep')} (pass resume=False to start over, or another out_dir)"
-        )
-    if saved["seeds"] != now["seeds"]:
-        raise ValueError(
-            f"cannot resume {out}: it was run with seeds {saved['seeds']}, not {seeds} "
-            "(pass resume=False to start over, or another out_dir)"
-        )
-    diff = sorted(
-        k for k in set(saved["config"]) | set(now["config"])
-        if saved["config"].get(k) != now["config"].get(k)
-        and not (k not in saved["config"] and io.holds_declared_default(config, k))
-    )  # fmt: skip
-    if diff:
-        raise ValueError(
-            f"cannot resume {out}: PPOConfig differs in {diff} (saved "
-            f"{ {k: saved['config'].get(k) for k in diff} }); pass resume=False to start "
-            "over, or another out_dir"
-        )
 
 
 # ----------------------------------------------------------------------------------------
@@ -606,22 +344,11 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
     (stacked over agents), ``chunks`` (chunks done) and ``complete``.
     """
     out = Path(out_dir)
-    try:
-        info = io.read_json(out / "run.json")
-        saved = info["config"]
-    except FileNotFoundError:
-        raise ValueError(f"{out}: no run.json, so no run of agents.runner.run") from None
-    except (ValueError, TypeError, KeyError) as e:
-        raise ValueError(f"{out / 'run.json'}: damaged ({e})") from None
+    info = checkpoint.read_run_info(out)
     if not (out / "checkpoints").is_dir():
         raise ValueError(f"{out / 'checkpoints'}: no checkpoint")
-
-    def tuples(x):  # JSON lists back to the config's tuples
-        return tuple(map(tuples, x)) if isinstance(x, list) else x
-
-    known = {f.name for f in dataclasses.fields(PPOConfig)}
-    config = PPOConfig(**{k: tuples(v) for k, v in saved.items() if k in known})
-    if _checker_sha256(checker) != info.get("checker_sha256"):
+    config = checkpoint.saved_config(info)
+    if checkpoint.checker_sha256(checker) != info.get("checker_sha256"):
         raise ValueError(f"{out}: the run was trained with "
                          f"{'another checker' if info.get('checker_sha256') else 'no checker'}"
                          f"{'' if checker is not None else ' (pass its checker)'}")  # fmt: skip
@@ -633,9 +360,9 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
     learner = make_learner(config, checker)
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
     abstract = jax.eval_shape(jax.vmap(learner.init), keys, hparams)
-    manager = _checkpoint_manager(out / "checkpoints")
-    chunks = _verified_step(manager, out, delete=False)
-    state = _restore(manager, chunks, abstract, None)
+    manager = checkpoint.make_manager(out / "checkpoints")
+    chunks = checkpoint.verified_step(manager, out, delete=False)
+    state = checkpoint.restore(manager, chunks, abstract, None)
     return {"config": config, "learner": learner, "seeds": seeds, "hparams": hparams,
             "params": state.params, "chunks": chunks,
             "complete": chunks == config.num_chunks}  # fmt: skip

@@ -1,6 +1,6 @@
 """Throughput benchmarks: environments (``env_throughput``), PPO training (``train_speed``
-against the PureJaxRL-style baseline ``purejaxrl_ppo``), and their shared timing protocol
-(``timing``)."""
+against the PureJaxRL-style baseline, :mod:`agents.baseline`, also timed alone by
+``purejaxrl_ppo``), all with one timing protocol (:mod:`agents.timing`)."""
 
 from jaxgrid.rundir import interruptible_if_command
 

@@ -2,7 +2,7 @@
 
 Times a jitted ``lax.scan`` of ``--steps`` steps of ``AutoReset(env)`` under ``vmap`` with
 random actions, with and without the checker's per-step work (``push`` + ``violation_prob``),
-for each ``--envs`` count, with :mod:`benchmarks.timing`'s protocol (compiled ahead, compile
+for each ``--envs`` count, with :mod:`agents.timing`'s protocol (compiled ahead, compile
 time reported apart, each call closed by ``block_until_ready``); the best of ``--repeats``
 calls is reported. Parameters are fresh (the cost does not depend on their values) unless
 ``--checker DIR`` is given.
@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from benchmarks import timing
+from agents import timing
 from checker import cli
 from checker.model import CheckerConfig
 from checker.reward import init_buffer, push, violation_prob

@@ -23,9 +23,9 @@ import sys
 import jax
 import jax.numpy as jnp
 
+from agents.timing import compile_ahead
 from benchmarks.cli import integer, real
 from benchmarks.layout_fidelity import native_ids
-from benchmarks.timing import compile_ahead
 from checker.cli import run_main
 from jaxgrid.io import write_json
 from jaxgrid.registry import make

@@ -2,7 +2,7 @@
 
 Protocol: uniform random actions drawn inside the scan with ``jax.random``, auto-reset,
 ``jax.jit`` of a function that runs ``jax.lax.scan`` over T steps of ``jax.vmap(step)`` over N
-envs. Every JAX library runs the identical harness (:func:`benchmarks.timing.measure`):
+envs. Every JAX library runs the identical harness (:func:`agents.timing.measure`):
 
 * ``reset`` is vmapped over N keys once, outside the timed region;
 * the jitted rollout is lowered and compiled explicitly; that wall time is the reported
@@ -48,8 +48,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from agents.timing import measure as measure_compiled
 from benchmarks.cli import INSTALL, integer
-from benchmarks.timing import measure as measure_compiled
 from checker.cli import run_main
 from jaxgrid.io import write_json
 

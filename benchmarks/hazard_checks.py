@@ -29,8 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from agents.timing import measure
 from benchmarks.cli import integer
-from benchmarks.timing import measure
 from checker.cli import run_main
 from jaxgrid import hazard_language as HL
 from jaxgrid import make
@@ -75,13 +75,14 @@ def oracle_figures(env, episodes: int, batch: int = 2_000, seed: int = 0) -> dic
     out["sequential"]["by_kind"] = {
         kind: {"episodes": int(m.sum()),
                "unconstrained_violated_pct": 100 * float(cat["violated_unconstrained"][m].mean())}
-        for kind in _KINDS
+        for kind in KINDS
         if (m := seq & (cat["kind"] == kind)).any()
     }  # fmt: skip
     return out
 
 
-_KINDS = tuple(f"{o} {t}" for o in ("after", "before") for t in ("pickup", "door", "ground"))
+# The sequential constraints' kinds, "<order> <trigger>", as ``by_kind`` names them.
+KINDS = tuple(f"{o} {t}" for o in ("after", "before") for t in ("pickup", "door", "ground"))
 
 
 def _sequence_kinds(env, key, batch: int) -> np.ndarray:

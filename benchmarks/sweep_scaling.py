@@ -19,13 +19,18 @@ import jax.numpy as jnp
 from jax import lax
 
 from agents.config import REWARD_MODES
+from agents.timing import compile_ahead, timed
 from benchmarks.cli import integer
-from benchmarks.timing import compile_ahead, timed
 from benchmarks.train_speed import device_description, make_checker, make_config
 from checker.cli import run_main
 
-DEFAULTS = {"env": "TwoRooms-v0", "num_envs": 128, "num_steps": 64, "epochs": 4,
-            "minibatches": 4}  # fmt: skip  (the experiments' PPO sizes)
+DEFAULTS = {
+    "env": "TwoRooms-v0",
+    "num_envs": 128,
+    "num_steps": 64,
+    "epochs": 4,
+    "minibatches": 4,
+}  # fmt: skip  (the experiments' PPO sizes)
 
 
 class Agents:

@@ -25,8 +25,8 @@ import numpy as np
 from jax import lax
 
 from agents.config import REWARD_MODES, PPOConfig
+from agents.timing import compile_ahead
 from benchmarks.cli import integer
-from benchmarks.timing import compile_ahead
 from benchmarks.train_speed import device_description, make_checker
 from checker.cli import run_main
 

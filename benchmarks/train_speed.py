@@ -5,14 +5,14 @@
     {"mode": "checker", "sps": ..., "compile_s": ..., "device": ..., "baseline_sps": ...,
      "ratio": ..., "num_envs": 256, "num_steps": 128, "epochs": 4, "minibatches": 8, ...}
 
-Protocol (compile ahead, then time; :mod:`benchmarks.timing`):
+Protocol (compile ahead, then time; :mod:`agents.timing`):
 
 * ours: :func:`agents.train.make_learner` on ``--env`` (TwoRooms-v0), one learner per mode;
   the checker modes use a freshly initialised checker (its cost does not depend on its
   weights). The timed executable is ``jit(lax.scan(learner.update))`` over ``U`` updates, the
   form training runs in (:meth:`Learner.chunk` scans updates too); it is compiled ahead,
   which is ``compile_s``, and the runner state is donated;
-* baseline: :func:`benchmarks.purejaxrl_ppo.make_train` (NAVIX DoorKey-8x8, PureJaxRL's
+* baseline: :func:`agents.baseline.make_train` (NAVIX DoorKey-8x8, PureJaxRL's
   ``ppo_minigrid`` structure) with the same envs x steps x epochs x minibatches and ``U``
   updates, also compiled ahead and then run (its ``train`` includes a negligible init);
 * ``--timesteps`` env steps are timed per mode, split into ``--repeats`` short calls of
@@ -69,8 +69,8 @@ import jax.numpy as jnp
 from jax import lax
 
 from agents.config import REWARD_MODES, PPOConfig
+from agents.timing import compile_ahead, timed
 from benchmarks.cli import integer, require
-from benchmarks.timing import compile_ahead, timed
 from checker.cli import run_main
 from jaxgrid.io import write_jsonl
 
@@ -104,7 +104,7 @@ def _log(*args) -> None:
 
 
 def device_description() -> str:
-    from benchmarks.purejaxrl_ppo import device_description as describe
+    from agents.baseline import device_description as describe
 
     return describe()
 
@@ -179,7 +179,7 @@ class Baseline:
     on another env (``env_name``: a jaxgrid id, the same learner on our env)."""
 
     def __init__(self, sizes: dict, updates: int, env_name: str | None = None):
-        from benchmarks import purejaxrl_ppo
+        from agents import baseline
 
         batch = sizes["num_envs"] * sizes["num_steps"]
         self.config = {
@@ -191,7 +191,7 @@ class Baseline:
             **({"ENV_NAME": env_name} if env_name else {}),
         }
         self.steps, self.calls = updates * batch, 0
-        train = purejaxrl_ppo.make_train(self.config)
+        train = baseline.make_train(self.config)
         self.compiled, self.compile_s = compile_ahead(train, jax.random.PRNGKey(0))
 
     def run(self) -> tuple[float, float]:
@@ -314,7 +314,7 @@ def profile_ours(ours: Ours, repeats: int, cache: dict) -> dict:
         fn = _env_only_fn(env, c.num_envs, c.num_steps, env.num_actions)
         cache["env"] = (fn, jax.random.PRNGKey(1))
         # The same rollout without any checker work (the none/shaped modes' rollout).
-        plain = make_learner(make_config("none", _sizes_of(c), ours.updates))
+        plain = make_learner(make_config("none", sizes_of(c), ours.updates))
         cache["plain"] = (_rollout_fn(plain), jax.jit(plain.init)(jax.random.PRNGKey(0)))
     pieces = {
         "update": (learner.update, runner),
@@ -342,7 +342,8 @@ def profile_ours(ours: Ours, repeats: int, cache: dict) -> dict:
     return out
 
 
-def _sizes_of(c) -> dict:
+def sizes_of(c) -> dict:
+    """The sizes :func:`make_config` takes that give back ``c``'s (env, batch, network)."""
     return {
         "env": c.env_id, "num_envs": c.num_envs, "num_steps": c.num_steps,
         "epochs": c.update_epochs, "minibatches": c.num_minibatches,
@@ -351,9 +352,9 @@ def _sizes_of(c) -> dict:
 
 
 def profile_baseline(baseline: Baseline, sizes: dict, updates: int, repeats: int) -> dict:
-    from benchmarks import purejaxrl_ppo
+    from agents.baseline import make_env
 
-    env = purejaxrl_ppo.make_env()
+    env = make_env()
     fn = _env_only_fn(env, sizes["num_envs"], sizes["num_steps"], env.num_actions(), True)
     pieces = {
         "env": (fn, jax.random.PRNGKey(1)),
@@ -378,37 +379,82 @@ def _parser() -> argparse.ArgumentParser:
         description="Env steps/s of the fused PPO per reward mode vs the PureJaxRL baseline.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES, metavar="MODE",
-                   help=f"reward modes to time, of {', '.join(MODES)}")
+    p.add_argument(
+        "--modes",
+        nargs="+",
+        default=list(MODES),
+        choices=MODES,
+        metavar="MODE",
+        help=f"reward modes to time, of {', '.join(MODES)}",
+    )
     p.add_argument("--env", default=DEFAULTS["env"], help="jaxgrid env id")
-    p.add_argument("--timesteps", type=integer, default=DEFAULTS["timesteps"],
-                   help="env steps timed per mode, over all repeats")
+    p.add_argument(
+        "--timesteps",
+        type=integer,
+        default=DEFAULTS["timesteps"],
+        help="env steps timed per mode, over all repeats",
+    )
     p.add_argument("--num-envs", type=integer, default=DEFAULTS["num_envs"], help="parallel envs")
-    p.add_argument("--num-steps", type=integer, default=DEFAULTS["num_steps"],
-                   help="rollout length per update")
-    p.add_argument("--epochs", type=integer, default=DEFAULTS["epochs"],
-                   help="epochs over each batch")
-    p.add_argument("--minibatches", type=integer, default=DEFAULTS["minibatches"],
-                   help="minibatches per epoch")
-    p.add_argument("--repeats", type=integer, default=DEFAULTS["repeats"],
-                   help="timed calls per mode; sps and ratio are medians")
-    p.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=True,
-                   help="also time the PureJaxRL baseline (needs navix)")
-    p.add_argument("--baseline-network", action="store_true", default=False,
-                   help="also time the baseline's learner (PureJaxRL MLP) on jaxgrid's "
-                   f"{JAXGRID_DOORKEY}, in the same rounds")
-    p.add_argument("--profile", action="store_true", default=False,
-                   help="add a per-update time breakdown to each line")
-    p.add_argument("--ops", type=integer, default=0, metavar="N",
-                   help="add the N costliest XLA kernels and model places of an update "
-                   "(profiler trace; 0: off)")
-    p.add_argument("--mlp", action="store_true", default=False,
-                   help="time the policy without its convolution (PPOConfig.conv_channels=())")
-    p.add_argument("--cell-dim", type=integer, default=PPOConfig().cell_dim, metavar="N",
-                   help="features per view cell (PPOConfig.cell_dim)")
-    p.add_argument("--film-codes", action="store_true",
-                   help="the sentence also scales the cells' one-hot codes "
-                        "(PPOConfig.film_codes)")
+    p.add_argument(
+        "--num-steps", type=integer, default=DEFAULTS["num_steps"], help="rollout length per update"
+    )
+    p.add_argument(
+        "--epochs", type=integer, default=DEFAULTS["epochs"], help="epochs over each batch"
+    )
+    p.add_argument(
+        "--minibatches", type=integer, default=DEFAULTS["minibatches"], help="minibatches per epoch"
+    )
+    p.add_argument(
+        "--repeats",
+        type=integer,
+        default=DEFAULTS["repeats"],
+        help="timed calls per mode; sps and ratio are medians",
+    )
+    p.add_argument(
+        "--baseline",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also time the PureJaxRL baseline (needs navix)",
+    )
+    p.add_argument(
+        "--baseline-network",
+        action="store_true",
+        default=False,
+        help="also time the baseline's learner (PureJaxRL MLP) on jaxgrid's "
+        f"{JAXGRID_DOORKEY}, in the same rounds",
+    )
+    p.add_argument(
+        "--profile",
+        action="store_true",
+        default=False,
+        help="add a per-update time breakdown to each line",
+    )
+    p.add_argument(
+        "--ops",
+        type=integer,
+        default=0,
+        metavar="N",
+        help="add the N costliest XLA kernels and model places of an update "
+        "(profiler trace; 0: off)",
+    )
+    p.add_argument(
+        "--mlp",
+        action="store_true",
+        default=False,
+        help="time the policy without its convolution (PPOConfig.conv_channels=())",
+    )
+    p.add_argument(
+        "--cell-dim",
+        type=integer,
+        default=PPOConfig().cell_dim,
+        metavar="N",
+        help="features per view cell (PPOConfig.cell_dim)",
+    )
+    p.add_argument(
+        "--film-codes",
+        action="store_true",
+        help="the sentence also scales the cells' one-hot codes (PPOConfig.film_codes)",
+    )
     p.add_argument("--out", default=None, help="also write the JSON lines to this file")
     return p  # fmt: skip
 

@@ -64,7 +64,7 @@ class BreakdownConfig:
             check_writable_file(self.out, f"{me}.out")
 
 
-def _checker_of(cfg: BreakdownConfig):
+def checker_of(cfg: BreakdownConfig):
     """The run's checker: ``--checker``, else the experiment's (``checker/``, or the shield's
     own ``shield_checker/`` when that one's parameters are the run's); None if it had none."""
     digest = read_json(Path(cfg.run) / "run.json").get("checker_sha256")
@@ -135,7 +135,7 @@ def replayed_checkpoint(run_dir: str, agents: dict) -> dict:
 
 
 def run(cfg: BreakdownConfig) -> dict:
-    agents = load_agents(cfg.run, _checker_of(cfg))
+    agents = load_agents(cfg.run, checker_of(cfg))
     learner, config = agents["learner"], agents["config"]
     checkpoint = replayed_checkpoint(cfg.run, agents)
     key = jax.random.PRNGKey(cfg.seed)
@@ -161,7 +161,7 @@ def run(cfg: BreakdownConfig) -> dict:
                                    "violation_rate": float(ep["violated"][m].mean()),
                                    "success_rate": float(ep["success"][m].mean())}  # fmt: skip
         rows.append(row)
-    _print(cfg, rows, checkpoint)
+    print_rows(cfg, rows, checkpoint)
     out = {"config": dataclasses.asdict(cfg), "mode": config.reward_mode,
            "checkpoint": checkpoint, "agents": rows}  # fmt: skip
     if cfg.out:
@@ -169,7 +169,10 @@ def run(cfg: BreakdownConfig) -> dict:
     return out
 
 
-def _print(cfg: BreakdownConfig, rows: list[dict], checkpoint: dict) -> None:
+def print_rows(cfg: BreakdownConfig, rows: list[dict], checkpoint: dict) -> None:
+    """Print which checkpoint was replayed (:func:`replayed_checkpoint`), then one column
+    per agent of ``rows`` (as :func:`run` makes them): violation and success % overall and
+    per group, and the share of episodes that got to each stage."""
     names = list(rows[0]["groups"])
     c = checkpoint
     state = "finished" if c["complete"] else "unfinished"
@@ -178,8 +181,11 @@ def _print(cfg: BreakdownConfig, rows: list[dict], checkpoint: dict) -> None:
     print(f"{cfg.run}: checkpoint after {c['chunks']} of {c['num_chunks']} chunks ({state}"
           f"{older})")  # fmt: skip
     print(f"{cfg.run}: violation % / success % over {cfg.episodes} episodes per agent")
-    swept = [k for k in rows[0]
-             if k not in ("seed", "violation_rate", "success_rate", "groups", "stages")]
+    swept = [
+        k
+        for k in rows[0]
+        if k not in ("seed", "violation_rate", "success_rate", "groups", "stages")
+    ]
     labels = [f"seed {r['seed']}" + "".join(f" {k}={r[k]:g}" for k in swept) for r in rows]
     width = max(len(n) for n in [*names, "all"])
     print(" " * width + "  " + "  ".join(f"{lab:>14}" for lab in labels))
@@ -208,5 +214,14 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     cli.run_main(main, PROG)
 
-__all__ = ["BreakdownConfig", "dividing_walls", "groups", "main", "replayed_checkpoint", "run",
-           "stage_tracker"]
+__all__ = [
+    "BreakdownConfig",
+    "checker_of",
+    "dividing_walls",
+    "groups",
+    "main",
+    "print_rows",
+    "replayed_checkpoint",
+    "run",
+    "stage_tracker",
+]

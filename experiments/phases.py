@@ -21,9 +21,9 @@ import jax
 
 import checker as chk
 import jaxgrid
+from agents.checkpoint import ResumeError
 from agents.config import PPOConfig
 from agents.networks import start_memory
-from agents.runner import ResumeError
 from agents.runner import run as run_ppo
 from agents.train import make_learner
 from checker.trained import params_sha256

@@ -106,7 +106,7 @@ class ExperimentConfig:
     # 2-core CPU two programs fill XLA's thread pool better than one, 1.2-1.4x sooner than
     # one after the other, with the same results; 1: one at a time
     workers: int = 2
-    # time the PureJaxRL-style baseline learner (benchmarks.purejaxrl_ppo) for ~30 s at the
+    # time the PureJaxRL-style baseline learner (agents.baseline) for ~30 s at the
     # end, and print its steps/s beside the run time: run times differ between machines
     machine_baseline: bool = True
     # The compared agents' PPO (--steps: total_timesteps). Each run sets reward_mode and
@@ -193,10 +193,10 @@ class ExperimentConfig:
             raise ValueError(f"{me}.out {self.out}: not writable, it is a file (an output "
                              "directory is needed)")  # fmt: skip
         settings = self.checker_train
-        if self.checker is None and self.checker_kind == "window" and settings.training_rows(
-            self.checker_samples
-        ) < (
-            settings.batch_size
+        if (
+            self.checker is None
+            and self.checker_kind == "window"
+            and settings.training_rows(self.checker_samples) < (settings.batch_size)
         ):
             raise ValueError(
                 f"{me}.checker_samples {self.checker_samples} leaves "
@@ -294,8 +294,10 @@ def preset(cfg: ExperimentConfig, name: str = "default") -> ExperimentConfig:
     return cfg
 
 
-def _make_checker(cfg: ExperimentConfig, out, keep: dict, cancel, reused=None):
-    """Phases a-c, or the reused checker ``reused``: ``(trained checker, its report)``."""
+def make_checker(cfg: ExperimentConfig, out, keep: dict, cancel, reused=None):
+    """Phases a-c, or the reused checker ``reused``: ``(trained checker, its report)``.
+    ``keep`` receives the ``behaviour`` agent and the checker ``data`` that phases a-b made;
+    ``cancel`` stops the behaviour agent's training at its next checkpoint."""
     if reused is not None:
         return phases.reuse_checker(cfg, reused)
     if cfg.checker_kind == "memory":  # a-c: streams, the recurrent checker, its report
@@ -321,7 +323,7 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     interrupted = False
     try:
         compiler.submit()  # the modes without a checker, while the checker is made
-        made = workers.submit(_make_checker, cfg, out, keep, workers.cancel, reused)  # a-c
+        made = workers.submit(make_checker, cfg, out, keep, workers.cancel, reused)  # a-c
         own = None  # c': the shield's own checker, beside c
         if cfg.shield_guided is not None and "shield" in cfg.modes:
             own = workers.submit(memory_phase.train_memory_checker, cfg, out, guided=
@@ -351,7 +353,7 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     phases.write_gif(cfg, out, runs, trained)
     results = assembly.assemble(cfg, out, runs, checker_report, time.perf_counter() - start)
     if cfg.machine_baseline:  # after the run, so that it does not delay any phase
-        from benchmarks.purejaxrl_ppo import machine_baseline
+        from agents.baseline import machine_baseline
 
         results["timing"]["machine_baseline"] = machine_baseline()
     paths = assembly.write_outputs(cfg, out, results, runs)  # f

@@ -15,7 +15,7 @@ import threading
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from pathlib import Path
 
-from agents.runner import precompile
+from agents.programs import precompile
 from experiments.phases import mode_arguments
 
 __all__ = ["TRAINING_COST", "Compiler", "Workers"]

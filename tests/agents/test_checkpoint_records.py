@@ -21,7 +21,8 @@ import pytest
 from helpers.agents_cases import SEEDS, TINY, leaves
 
 from agents import checkpoint
-from agents.runner import CheckpointError, ResumeError, load_agents, run
+from agents.checkpoint import CheckpointError, ResumeError
+from agents.runner import load_agents, run
 
 CONFIG = dataclasses.replace(TINY, ent_coef=0.013)  # two chunks, checkpointed after each
 

@@ -1,10 +1,10 @@
-"""Checkpoints of ``agents.runner`` saved from several threads at once, as the experiments
+"""Checkpoints (``agents.checkpoint``) saved from several threads at once, as the experiments
 save two reward modes' runs, never collide: hundreds of saves under CPU load, no error,
 and each directory's newest checkpoint restores, files and records verified, to what was
 saved. A save that fails is a ``CheckpointError`` naming the checkpoint that is kept.
 
-The saves go through the helpers ``run`` calls (one save per chunk), not through ``run``
-itself: a chunk of training would make hundreds of saves take minutes.
+The saves go through the functions ``agents.runner.run`` calls (one save per chunk), not
+through ``run`` itself: a chunk of training would make hundreds of saves take minutes.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agents import runner
-from agents.runner import CheckpointError
+from agents import checkpoint
+from agents.checkpoint import CheckpointError
 from jaxgrid import io
 
 THREADS = 3
@@ -48,14 +48,14 @@ def record(agent: int, step: int) -> dict:
 
 def save_every_chunk(out, agent: int, saves: int, errors: list) -> None:
     """Save ``saves`` checkpoints into ``out`` as ``run`` does, collecting any error."""
-    manager = runner._checkpoint_manager(out / "checkpoints")
+    manager = checkpoint.make_manager(out / "checkpoints")
     records = []
     try:
         for step in range(1, saves + 1):
             records.append(record(agent, step))
             io.append_jsonl(out / "metrics.jsonl", records[-1:])
             try:
-                runner._save_checkpoint(manager, step, state(agent, step), out, records)
+                checkpoint.save(manager, step, state(agent, step), out, records)
             except Exception as e:  # every error counts, whatever its type
                 errors.append(f"{out.name}, step {step}: {type(e).__name__}: {e}")
     finally:
@@ -96,16 +96,16 @@ def test_saves_from_several_threads_never_collide(fast_path):
     assert not [t for t in savers if t.is_alive()], f"saves hung; errors so far: {errors[:3]}"
     assert errors == [], f"{len(errors)} of {THREADS * SAVES} saves failed: {errors[:3]}"
 
-    ident = runner._ident
+    ident = lambda r: (r["seed"],)  # noqa: E731 (the agent a record belongs to)
     for i, out in enumerate(dirs):
-        manager = runner._checkpoint_manager(out / "checkpoints")
+        manager = checkpoint.make_manager(out / "checkpoints")
         try:
             assert manager.all_steps() == [SAVES - 1, SAVES]
-            step, records = runner._resume_point(manager, out, [(i,)], ident)
+            step, records = checkpoint.resume_point(manager, out, [(i,)], ident)
             assert step == SAVES
             assert records == [record(i, s) for s in range(1, SAVES + 1)]
             abstract = jax.eval_shape(lambda i=i: state(i, SAVES))
-            restored = runner._restore(manager, SAVES, abstract, None)
+            restored = checkpoint.restore(manager, SAVES, abstract, None)
         finally:
             manager.close()
         expected = state(i, SAVES)
@@ -118,29 +118,29 @@ def test_saves_from_several_threads_never_collide(fast_path):
 def test_a_failed_save_is_a_checkpoint_error_naming_the_kept_checkpoint(tmp_path):
     checkpoints = tmp_path / "checkpoints"
     unsavable = {"x": object()}  # orbax raises on a leaf it cannot write
-    manager = runner._checkpoint_manager(checkpoints)
+    manager = checkpoint.make_manager(checkpoints)
     try:
         with pytest.raises(CheckpointError, match="no checkpoint was written yet"):
-            runner._save_checkpoint(manager, 1, unsavable, tmp_path, [record(0, 1)])
-        runner._save_checkpoint(manager, 1, state(0, 1), tmp_path, [record(0, 1)])
+            checkpoint.save(manager, 1, unsavable, tmp_path, [record(0, 1)])
+        checkpoint.save(manager, 1, state(0, 1), tmp_path, [record(0, 1)])
 
         # orbax raises: the error names the step, its directory and the kept checkpoint.
         with pytest.raises(CheckpointError) as e:
-            runner._save_checkpoint(manager, 2, unsavable, tmp_path, [record(0, 2)])
+            checkpoint.save(manager, 2, unsavable, tmp_path, [record(0, 2)])
         assert isinstance(e.value, OSError) and isinstance(e.value.__cause__, ValueError)
         message = str(e.value)
         assert f"checkpoint 2 could not be saved in {checkpoints}" in message
         assert f"the last good checkpoint (chunk 1) is kept in {checkpoints}" in message
         assert manager.all_steps() == [1]
-        assert runner._verified_step(manager, tmp_path, delete=False) == 1
+        assert checkpoint.verified_step(manager, tmp_path, delete=False) == 1
 
         # The step saves once the problem is gone; orbax declining a save (save() returns
         # False: a step older than the newest) is an error too.
-        runner._save_checkpoint(manager, 2, state(0, 2), tmp_path, [record(0, 2)])
+        checkpoint.save(manager, 2, state(0, 2), tmp_path, [record(0, 2)])
         with pytest.raises(CheckpointError, match=r"refused .* the last good checkpoint "
                                                   r"\(chunk 2\)"):  # fmt: skip
-            runner._save_checkpoint(manager, 1, state(0, 1), tmp_path, [record(0, 1)])
+            checkpoint.save(manager, 1, state(0, 1), tmp_path, [record(0, 1)])
         assert manager.all_steps() == [1, 2]
-        assert runner._verified_step(manager, tmp_path, delete=False) == 2
+        assert checkpoint.verified_step(manager, tmp_path, delete=False) == 2
     finally:
         manager.close()

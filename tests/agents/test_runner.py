@@ -30,9 +30,10 @@ from helpers.agents_cases import (
 )
 from helpers.host_devices import ROOT, device_env
 
-from agents import runner
+from agents import checkpoint, runner
 from agents.config import PPOConfig
-from agents.runner import NonFiniteError, load_agents, precompile, run
+from agents.programs import precompile, programs_for
+from agents.runner import NonFiniteError, load_agents, run
 from experiments import breakdown
 
 # ------------------------------------------------------------------ multi-device process
@@ -141,7 +142,7 @@ def test_precompiled_programs_are_used_and_change_nothing(uninterrupted):
     thread.start()
     thread.join()
     precompile(TINY, seeds=SEEDS, final_episodes=4)  # adds the final evaluation's program
-    programs = runner._programs(TINY, None, multi_host=False)
+    programs = programs_for(TINY, None, multi_host=False)
     for name, args in (("init", ()), ("chunk", ()), ("final", (4,))):
         assert isinstance(programs.executable(name, len(SEEDS), *args), jax.stages.Compiled)
     with count_compiles() as compiled:
@@ -157,13 +158,10 @@ def test_precompile_of_a_finished_run_compiles_only_its_final_evaluation(tmp_pat
     """Resuming a finished run trains nothing, so only its final evaluation is compiled."""
     config = dataclasses.replace(TINY, ent_coef=0.02)  # programs of its own
     assert config.num_chunks == 2
-    digests = tmp_path / runner.DIGESTS
-    digests.write_text(json.dumps({"1": {}}))
-    assert not runner._finished(tmp_path, config)
-    digests.write_text(json.dumps({"1": {}, "2": {}}))
-    assert runner._finished(tmp_path, config)
+    (tmp_path / checkpoint.DIGESTS).write_text(json.dumps({"1": {}, "2": {}}))
+    assert checkpoint.finished(tmp_path, config)
     precompile(config, seeds=SEEDS, final_episodes=4, out_dir=tmp_path)
-    programs = runner._programs(config, None, multi_host=False)
+    programs = programs_for(config, None, multi_host=False)
     assert isinstance(programs.executable("final", len(SEEDS), 4), jax.stages.Compiled)
     for name in ("init", "chunk"):
         assert not isinstance(programs.executable(name, len(SEEDS)), jax.stages.Compiled)
@@ -257,39 +255,20 @@ def test_runs_in_two_threads_at_once_match_the_run_alone(uninterrupted):
             np.testing.assert_array_equal(a, b)
 
 
-def test_run_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
-    """A ``run.json`` written before a config field existed describes the same run while
-    the field holds its declared default (new options are added off by default)."""
-    runner._write_run_info(tmp_path, TINY, list(SEEDS))
-    saved = json.loads((tmp_path / "run.json").read_text())
-    del saved["config"]["penalty_gate"]
-    (tmp_path / "run.json").write_text(json.dumps(saved))
-    runner._check_run_info(tmp_path, TINY, list(SEEDS))
-    gated = dataclasses.replace(TINY, penalty_gate=0.5)
-    with pytest.raises(ValueError, match="penalty_gate"):
-        runner._check_run_info(tmp_path, gated, list(SEEDS))
-    del saved["config"]["num_envs"]  # TINY's is not PPOConfig's default: refused
-    (tmp_path / "run.json").write_text(json.dumps(saved))
-    assert TINY.num_envs != PPOConfig.num_envs
-    with pytest.raises(ValueError, match="num_envs"):
-        runner._check_run_info(tmp_path, TINY, list(SEEDS))
-
-
-def test_checkpoint_written_before_a_runner_field_existed_resumes(tmp_path, uninterrupted,
-                                                                   capsys):
+def test_checkpoint_written_before_a_runner_field_existed_resumes(tmp_path, uninterrupted, capsys):
     """A checkpoint without ``RunnerState.success`` (written before it existed) resumes, the
     field from zeros, and the run ends as the uninterrupted one."""
     import orbax.checkpoint as ocp
 
     run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False, max_chunks=1)
-    manager = runner._checkpoint_manager(tmp_path / "checkpoints")
+    manager = checkpoint.make_manager(tmp_path / "checkpoints")
     saved = manager.restore(1)
     assert "success" in saved
     manager.delete(1)
     manager.save(1, args=ocp.args.StandardSave({k: v for k, v in saved.items()
                                                  if k != "success"}))  # fmt: skip
     manager.wait_until_finished()
-    runner._record_digests(manager, tmp_path)
+    checkpoint.record_digests(manager, tmp_path)
     done = run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False)
     assert "predates success" in capsys.readouterr().err
     assert done["complete"]
@@ -365,8 +344,11 @@ def test_groups_name_the_colours_a_sentence_names():
 
 @pytest.mark.parametrize(
     ("argv", "message"),
-    [([], "no run.json"), (["--run", "/nonexistent"], "no run.json"),
-     (["--episodes", "0"], "episodes must be")],
+    [
+        ([], "no run.json"),
+        (["--run", "/nonexistent"], "no run.json"),
+        (["--episodes", "0"], "episodes must be"),
+    ],
 )
 def test_bad_input_is_named(argv, message, finished, capsys):
     out, _ = finished

@@ -35,7 +35,7 @@ COMMANDS = sorted(
 
 def test_the_commands_are_found():
     assert {"checker_cost", "env_throughput", "purejaxrl_ppo", "train_speed"} <= set(COMMANDS)
-    assert "timing" not in COMMANDS and "cli" not in COMMANDS
+    assert "cli" not in COMMANDS
 
 
 def _main_guard(tree: ast.Module) -> ast.If | None:
@@ -152,8 +152,11 @@ def test_the_throughput_comparison_skips_a_missing_peer_and_says_how_to_install_
 
 def _command(name: str, *argv: str, cwd: Path, pythonpath: str = "", **env: str):
     """``python -m benchmarks.<name> argv`` started in ``cwd`` (stderr piped)."""
-    env = {**os.environ, **env, "PYTHONPATH": os.pathsep.join(filter(None, (pythonpath,
-                                                                             str(ROOT))))}
+    env = {
+        **os.environ,
+        **env,
+        "PYTHONPATH": os.pathsep.join(filter(None, (pythonpath, str(ROOT)))),
+    }
     return subprocess.Popen(
         [sys.executable, "-m", f"benchmarks.{name}", *argv], cwd=cwd, env=env,
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
@@ -175,13 +178,19 @@ def test_a_missing_peer_is_one_line_and_exit_2(tmp_path):
 # The smallest sizes; env_throughput's scan is long enough to be still running when signalled.
 INTERRUPTED = [
     pytest.param("checker_cost", ["--envs", "1", "--steps", "1", "--repeats", "1"]),
-    pytest.param("env_throughput", ["--libs", "jaxgrid", "--num-envs", "1", "--steps", "100000",
-                                    "--repeats", "3"]),  # fmt: skip
+    pytest.param(
+        "env_throughput",
+        ["--libs", "jaxgrid", "--num-envs", "1", "--steps", "100000", "--repeats", "3"],
+    ),  # fmt: skip
     pytest.param("hazard_checks", ["--episodes", "1"], marks=pytest.mark.slow),
-    pytest.param("sweep_scaling", ["--agents", "1", "--updates", "1", "--repeats", "1",
-                                   "--num-envs", "8"], marks=pytest.mark.slow),  # fmt: skip
-    pytest.param("threads", ["--seeds", "1", "--updates", "1", "--rounds", "1"],
-                 marks=pytest.mark.slow),  # fmt: skip
+    pytest.param(
+        "sweep_scaling",
+        ["--agents", "1", "--updates", "1", "--repeats", "1", "--num-envs", "8"],
+        marks=pytest.mark.slow,
+    ),  # fmt: skip
+    pytest.param(
+        "threads", ["--seeds", "1", "--updates", "1", "--rounds", "1"], marks=pytest.mark.slow
+    ),  # fmt: skip
 ]
 
 

@@ -18,8 +18,9 @@ def test_oracle_figures_cover_every_type_and_obey():
         assert f["success_pct"] == 100.0 and f["violated_pct"] == 0.0
         assert 0.0 <= f["unconstrained_violated_pct"] <= 100.0
     kinds = figures["sequential"]["by_kind"]
-    assert set(kinds) <= set(hazard_checks._KINDS) and {k.split()[0] for k in kinds} == {
-        "after", "before"
+    assert set(kinds) <= set(hazard_checks.KINDS) and {k.split()[0] for k in kinds} == {
+        "after",
+        "before",
     }
     assert sum(k["episodes"] for k in kinds.values()) == figures["sequential"]["episodes"]
 

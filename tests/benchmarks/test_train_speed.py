@@ -75,7 +75,7 @@ def test_cell_dim_reaches_the_timed_config():
     wide = train_speed.make_config("checker", {**sizes, "cell_dim": 32}, 1)
     assert wide.cell_dim == 32
     # --profile's checker-free reference is built from the timed config's sizes
-    assert train_speed.make_config("none", train_speed._sizes_of(wide), 1).cell_dim == 32
+    assert train_speed.make_config("none", train_speed.sizes_of(wide), 1).cell_dim == 32
 
 
 @pytest.mark.parametrize(
@@ -108,8 +108,13 @@ def test_profile_breakdown_from_the_public_api():
     for key in ("optimisation_s", "checker_s", "policy_and_bookkeeping_s",
                 "backward_optimizer_gae_shuffle_s"):  # fmt: skip
         assert math.isfinite(parts[key])
-    assert set(parts["fractions"]) == {"env_step", "policy_and_bookkeeping", "checker",
-                                       "loss_forward", "backward_optimizer_gae_shuffle"}
+    assert set(parts["fractions"]) == {
+        "env_step",
+        "policy_and_bookkeeping",
+        "checker",
+        "loss_forward",
+        "backward_optimizer_gae_shuffle",
+    }
     assert "baseline_breakdown" not in line
 
 

@@ -18,12 +18,6 @@ from jaxgrid import rundir
 SCENARIOS = "ThreeRoomsKey-v0, TwoRooms-v0, TwoRoomsLava-v0"
 
 
-
-
-
-
-
-
 @pytest.mark.parametrize("main", [shield_judges.main, false_alarms.main, breakdown.main,
                                   label_timing.main])  # fmt: skip
 def test_help_exits_0(main, capsys):
@@ -71,8 +65,11 @@ def test_an_unwritable_out_file_is_refused_before_any_work(command, tmp_path, ca
     run = tmp_path / "run"
     run.mkdir()
     (run / "run.json").write_text("{}")
-    given = {"shield_judges": [], "breakdown": ["--run", str(run)],
-             "false_alarms": ["--checker", fake_checker(tmp_path / "w", lookahead=1)]}
+    given = {
+        "shield_judges": [],
+        "breakdown": ["--run", str(run)],
+        "false_alarms": ["--checker", fake_checker(tmp_path / "w", lookahead=1)],
+    }
     main = {"shield_judges": shield_judges.main, "false_alarms": false_alarms.main,
             "breakdown": breakdown.main}[command]  # fmt: skip
     for out, message in ((a_file / "r.json", "is a file, not a directory"),
@@ -119,7 +116,7 @@ def test_breakdown_names_an_older_checkpoint_it_replays(tmp_path, capsys):
     row = {"seed": 0, "violation_rate": 0.5, "success_rate": 0.25, "groups": {},
            "stages": {}}  # fmt: skip
     (tmp_path / "run.json").write_text("{}")
-    breakdown._print(breakdown.BreakdownConfig(run=str(tmp_path), episodes=8), [row], got)
+    breakdown.print_rows(breakdown.BreakdownConfig(run=str(tmp_path), episodes=8), [row], got)
     out = capsys.readouterr().out
     assert "checkpoint after 1 of 4 chunks (unfinished; the newest, after 2 chunks" in out
 

@@ -213,7 +213,7 @@ def test_the_shield_trains_with_its_own_checker_and_the_others_with_the_experime
     class Stop(Exception):
         pass
 
-    monkeypatch.setattr(pipeline, "_make_checker", lambda cfg, out, keep, cancel, reused: (
+    monkeypatch.setattr(pipeline, "make_checker", lambda cfg, out, keep, cancel, reused: (
         "experiment's", {"test": {}}))  # fmt: skip
     monkeypatch.setattr(
         memory_phase,
@@ -265,7 +265,7 @@ def test_the_breakdown_finds_the_checker_each_mode_trained_with(tmp_path):
         write_json(tmp_path / "modes" / mode / "run.json",
                    {"checker_sha256": params_sha256(tmp_path / name)})  # fmt: skip
         cfg = breakdown.BreakdownConfig(run=str(tmp_path / "modes" / mode))
-        found = breakdown._checker_of(cfg)
+        found = breakdown.checker_of(cfg)
         expected = own if name == "shield_checker" else first
         np.testing.assert_array_equal(*(ravel_pytree(c.params)[0]
                                         for c in (found, expected)))  # fmt: skip

@@ -1,4 +1,5 @@
-"""Compile-then-time, the one timing protocol of every benchmark here.
+"""Compile-then-time, the one timing protocol of the machine baseline
+(:func:`agents.baseline.machine_baseline`) and of every benchmark in ``benchmarks``.
 
 A jitted function is lowered and compiled ahead (:func:`compile_ahead`, timed on its own, so
 compile time never leaks into a throughput figure), then called with each call closed by

@@ -1,11 +1,11 @@
-"""benchmarks.timing: compile ahead (timed apart), then block_until_ready timings."""
+"""agents.timing: compile ahead (timed apart), then block_until_ready timings."""
 
 import chex
 import jax
 import jax.numpy as jnp
 import pytest
 
-from benchmarks.timing import Timing, compile_ahead, measure, timed
+from agents.timing import Timing, compile_ahead, measure, timed
 
 
 def test_measure_compiles_once_and_times_each_call():

@@ -1,0 +1,59 @@
+"""``run.json`` and the checkpoint digests as ``agents.checkpoint`` reads them, without
+training: a resume matches the saved configuration (a field added since holds its declared
+default), the saved configuration reads back as it was run, and a run counts as finished
+where the digests list its last chunk.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+from helpers.agents_cases import SEEDS, TINY
+
+from agents import checkpoint
+from agents.config import PPOConfig
+
+
+def test_run_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
+    """A ``run.json`` written before a config field existed describes the same run while
+    the field holds its declared default (new options are added off by default)."""
+    checkpoint.write_run_info(tmp_path, TINY, list(SEEDS))
+    saved = json.loads((tmp_path / "run.json").read_text())
+    del saved["config"]["penalty_gate"]
+    (tmp_path / "run.json").write_text(json.dumps(saved))
+    checkpoint.check_run_info(tmp_path, TINY, list(SEEDS))
+    gated = dataclasses.replace(TINY, penalty_gate=0.5)
+    with pytest.raises(ValueError, match="penalty_gate"):
+        checkpoint.check_run_info(tmp_path, gated, list(SEEDS))
+    del saved["config"]["num_envs"]  # TINY's is not PPOConfig's default: refused
+    (tmp_path / "run.json").write_text(json.dumps(saved))
+    assert TINY.num_envs != PPOConfig.num_envs
+    with pytest.raises(ValueError, match="num_envs"):
+        checkpoint.check_run_info(tmp_path, TINY, list(SEEDS))
+
+
+def test_the_saved_configuration_reads_back_as_it_was_run(tmp_path):
+    sweep = {"lr": [1e-4, 3e-4]}
+    checkpoint.write_run_info(tmp_path, TINY, list(SEEDS), sweep=sweep)
+    info = checkpoint.read_run_info(tmp_path)
+    assert info == checkpoint.run_info(TINY, list(SEEDS), sweep=sweep)
+    assert checkpoint.saved_config(info) == dataclasses.replace(TINY, seed=PPOConfig.seed)
+    with pytest.raises(ValueError, match="no run.json"):
+        checkpoint.read_run_info(tmp_path / "elsewhere")
+    (tmp_path / "run.json").write_text("{")
+    with pytest.raises(ValueError, match="damaged"):
+        checkpoint.read_run_info(tmp_path)
+    with pytest.raises(checkpoint.ResumeError, match="damaged"):
+        checkpoint.check_run_info(tmp_path, TINY, list(SEEDS))
+
+
+def test_a_run_is_finished_where_the_digests_list_its_last_chunk(tmp_path):
+    assert TINY.num_chunks == 2
+    assert not checkpoint.finished(tmp_path, TINY)  # no digests
+    digests = tmp_path / checkpoint.DIGESTS
+    digests.write_text(json.dumps({"1": {}}))
+    assert not checkpoint.finished(tmp_path, TINY)
+    digests.write_text(json.dumps({"1": {}, "2": {}}))
+    assert checkpoint.finished(tmp_path, TINY)
