@@ -4,7 +4,7 @@ Inputs: a window of the last ``n`` egocentric observations, uint8 ``(B, n, V, V,
 encodings ordered oldest -> newest (the all-zero frame, "unseen" everywhere, pads windows at
 the start of an episode), and the constraint's token ids, int32 ``(B, L)`` right-padded with
 the id of :data:`jaxgrid.language.PAD`. Output: one logit per row that a violation is about to
-happen (the label's exact meaning is fixed by the data, see :mod:`checker.data`).
+happen (the label's exact meaning is fixed by the data, see :mod:`checker.data.labels`).
 
 Architecture (the paper's, sizes in :class:`CheckerConfig`):
 

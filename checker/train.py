@@ -107,7 +107,7 @@ class CheckerTrainConfig:
     # lookahead is 1 (labels would not be exact) and the final windows are marked.
     blocked: int = 0
     # Also train on the windows that end at an episode's final observation, labelled by the
-    # step that ended it (checker.data, "Final windows"): the checker reward and the shield
+    # step that ended it (checker.data.streams, "Final windows"): the checker reward and the shield
     # score such windows, and where a violation ends the episode (lava) it is the only window
     # that shows the step into it.
     final_windows: bool = False
