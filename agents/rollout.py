@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from agents import shield as shield_mod
 from agents.config import PPOConfig
 from agents.evaluation import violation_of
-from checker.memory import NO_ACTION
+from checker.memory_model import NO_ACTION
 from jaxgrid import language
 from jaxgrid.constants import EMPTY, FORWARD
 from jaxgrid.wrappers import BatchedAutoReset, masked_map
@@ -76,7 +76,7 @@ def sentence_rows(obs: dict, table: jax.Array) -> jax.Array:
 
 def embed(checker, images: jax.Array, actions: jax.Array | None = None) -> jax.Array:
     """The checker's per-frame embeddings (..., D) of ``images`` reached by ``actions`` (...)
-    (None: episodes' first frames, :data:`~checker.memory.NO_ACTION`); a zero placeholder
+    (None: episodes' first frames, :data:`~checker.memory_model.NO_ACTION`); a zero placeholder
     (..., 1) without a checker."""
     if checker is None:
         return jnp.zeros(images.shape[:-3] + (1,), jnp.float32)

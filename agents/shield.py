@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 
 from agents.evaluation import violation_of
-from checker.memory import NO_ACTION
+from checker.memory_model import NO_ACTION
 from jaxgrid.constants import FORWARD
 
 JUDGES = ("checker", "monitor")
@@ -117,7 +117,7 @@ class Shield(struct.PyTreeNode):
     # -- episodes played without the learner's carry (evaluation) ---------------------
     def start(self, obs: dict):
         """The judge's memory of fresh episodes whose first observations are ``obs``: the
-        checker's memory (:meth:`~checker.trained.TrainedChecker.stream_start`) and its codes
+        checker's memory (:meth:`~checker.model.TrainedChecker.stream_start`) and its codes
         of each sentence."""
         if self.judge == "monitor":
             return ()

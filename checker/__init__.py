@@ -1,9 +1,10 @@
 """Constraint checker: does the agent's recent trajectory, read with the
 constraint's sentence, mean a violation is about to happen?
 
-* :mod:`checker.model`: the Flax network (:class:`Checker`, :class:`CheckerConfig`);
-* :mod:`checker.trained`: :class:`TrainedChecker` (params + config pytree), :func:`save`,
-  :func:`load`;
+* :mod:`checker.model`: the window checker, its Flax network (:class:`Checker`,
+  :class:`CheckerConfig`) and :class:`TrainedChecker` (params + config pytree);
+* :mod:`checker.memory_model`: the memory checker, a GRU over the episode's frames;
+* :mod:`checker.store`: :func:`save` and :func:`load` of a checker of either kind;
 * :mod:`checker.reward`: the on-device ring buffer (:func:`init_buffer`, :func:`push`) and
   :func:`violation_prob`, what the PPO step calls every env step;
 * :mod:`checker.data`: auto-labelled datasets collected on device (:func:`collect`);
@@ -37,7 +38,7 @@ from checker.metrics import (
     per_group,
     predict,
 )
-from checker.model import Checker, CheckerConfig
+from checker.model import Checker, CheckerConfig, TrainedChecker
 from checker.policies import (
     NoisyOracleParams,
     noisy_oracle_policy,
@@ -45,8 +46,8 @@ from checker.policies import (
     with_random_actions,
 )
 from checker.reward import init_buffer, push, violation_prob
+from checker.store import load, save
 from checker.train import CheckerTrainConfig, train_checker
-from checker.trained import TrainedChecker, load, save
 
 __all__ = [
     "Checker",

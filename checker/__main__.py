@@ -107,11 +107,11 @@ def main(argv=None) -> dict:
     (:func:`jaxgrid.rundir.lock`); before any work, a second process on it gets
     :class:`~jaxgrid.rundir.LockHeld`, and a non-empty ``--out`` without ``--overwrite`` (or
     one that is not a checker directory) a ``ValueError``
-    (:func:`checker.trained.fresh_checker_dir`): ``python -m checker`` exits with status 2 on
+    (:func:`checker.store.fresh_checker_dir`): ``python -m checker`` exits with status 2 on
     both, and with 130 at once on Ctrl-C (:func:`checker.cli.run_main`).
     """
     args = parse(argv)
-    from checker.trained import fresh_checker_dir
+    from checker.store import fresh_checker_dir
     from jaxgrid.rundir import lock
 
     with lock(args.out, "python -m checker"):
@@ -124,7 +124,7 @@ def _run(args: CheckerRun) -> dict:
     from checker.data import collect, collect_episodes
     from checker.metrics import evaluate
     from checker.policies import noisy_oracle_policy
-    from checker.trained import params_sha256, save
+    from checker.store import params_sha256, save
     from jaxgrid.io import write_json
 
     settings = args.train

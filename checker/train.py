@@ -35,8 +35,7 @@ from checker.data import (
     with_colour_counterfactuals,
     with_distractors,
 )
-from checker.model import Checker, CheckerConfig, init_params
-from checker.trained import TrainedChecker
+from checker.model import Checker, CheckerConfig, TrainedChecker, init_params
 from jaxgrid import language
 
 __all__ = ["CheckerTrainConfig", "check_window_scenario", "train_checker", "window_scenarios"]

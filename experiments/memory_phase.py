@@ -29,9 +29,9 @@ import jax
 import numpy as np
 
 import checker as chk
-from checker import memory
+from checker import memory, memory_model
 from checker.metrics import binary_metrics
-from checker.trained import params_sha256
+from checker.store import params_sha256
 from experiments.phases import _rates, _redo
 from jaxgrid.io import read_json, write_json
 
@@ -68,12 +68,12 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
     key = jax.random.PRNGKey(cfg.seed)
     data = memory.collect_streams(env, key, settings.streams, settings.steps, settings.guided)
     data = memory.relabel(data, settings.label)
-    config = memory.MemoryCheckerConfig(view_size=env.view_size, actions=cfg.checker_actions)
+    config = memory_model.MemoryCheckerConfig(view_size=env.view_size, actions=cfg.checker_actions)
     params, losses = memory.fit(data, config, settings, phase if cfg.progress else None)
     threshold = cfg.ppo.checker_threshold
-    trained = memory.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
+    trained = memory_model.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
                                           threshold=threshold, label=settings.label)  # fmt: skip
-    memory.save(trained, ckpt)
+    chk.save(trained, ckpt)
     test = memory.collect_streams(env, jax.random.fold_in(key, 1), settings.streams,
                                   settings.steps, settings.guided)  # fmt: skip
     test = memory.relabel(test, settings.label)

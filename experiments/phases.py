@@ -27,7 +27,7 @@ from agents.networks import start_memory
 from agents.runner import ResumeError, precompile
 from agents.runner import run as run_ppo
 from agents.train import make_learner
-from checker.trained import params_sha256
+from checker.store import params_sha256
 from experiments import provenance, stats
 from jaxgrid.io import holds_declared_default, read_json, to_jsonable, write_json, write_jsonl
 

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from checker.trained import check_vocab
+from checker.store import check_vocab
 from jaxgrid import language
 from jaxgrid.io import atomic_write, read_json, write_json
 from jaxgrid.rundir import sha256_bytes, sha256_file

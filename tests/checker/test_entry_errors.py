@@ -19,7 +19,7 @@ from helpers.cli_help import exit_code, fake_checker, help_entries, squeezed, st
 
 from checker import __main__ as checker_main
 from checker import memory as MC
-from checker.trained import CHECKER_FILES, check_vocab
+from checker.store import CHECKER_FILES, check_vocab
 from jaxgrid import rundir
 
 

@@ -18,11 +18,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import checker
 import jaxgrid
 from checker import memory as MC
+from checker import memory_model as MM
 from jaxgrid.constants import FORWARD
 
-SMALL = MC.MemoryCheckerConfig(
+SMALL = MM.MemoryCheckerConfig(
     word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4, state_dim=8, memory_dim=16, mlp_dim=16
 )
 
@@ -37,7 +39,7 @@ def _random_frames(key, b, t):
 
 @pytest.fixture(scope="module")
 def model_and_params():
-    model = MC.MemoryChecker(SMALL)
+    model = MM.MemoryChecker(SMALL)
     frames = _random_frames(jax.random.PRNGKey(0), 1, 4)
     starts = jnp.zeros((1, 4), bool)
     tokens = jnp.zeros((1, 4, SMALL.max_len), jnp.int32)
@@ -86,7 +88,7 @@ def test_stream_actions_lead_into_each_frame(streams):
     behaviour takes otherwise, and a step forward wherever the step into the frame cost (only
     entering a cell is a constraint event)."""
     d = streams
-    assert (d["action"][d["starts"]] == MC.NO_ACTION).all()
+    assert (d["action"][d["starts"]] == MM.NO_ACTION).all()
     inner = d["action"][~d["starts"]]
     assert set(np.unique(inner).tolist()) == {a for a, p in enumerate(MC.BEHAVIOUR) if p > 0}
     assert 0.45 < (inner == FORWARD).mean() < 0.65  # BEHAVIOUR's 0.55, over ~900 steps
@@ -95,13 +97,11 @@ def test_stream_actions_lead_into_each_frame(streams):
 
 
 def test_a_checker_of_actions_reads_the_action_into_each_frame(tmp_path):
-    import checker
-
-    trained = MC.new_memory_checker(dataclasses.replace(SMALL, actions=True), jax.random.PRNGKey(6))
+    trained = MM.new_memory_checker(dataclasses.replace(SMALL, actions=True), jax.random.PRNGKey(6))
     frames = _random_frames(jax.random.PRNGKey(7), 2, 6)
     starts = jnp.zeros((2, 6), bool).at[:, 0].set(True)
     tokens = jnp.ones((2, 6, SMALL.max_len), jnp.int32)
-    a = jnp.full((2, 6), FORWARD, jnp.int32).at[:, 0].set(MC.NO_ACTION)
+    a = jnp.full((2, 6), FORWARD, jnp.int32).at[:, 0].set(MM.NO_ACTION)
     logits = jax.jit(trained.logits)
     la, lb = (
         np.asarray(logits(frames, starts, tokens, a)),
@@ -111,7 +111,7 @@ def test_a_checker_of_actions_reads_the_action_into_each_frame(tmp_path):
     assert np.abs(la[:, 3:] - np.asarray(lb)[:, 3:]).min() > 0  # that step and every later one
     with pytest.raises(ValueError, match="reads the action into each frame"):
         trained.logits(frames, starts, tokens)
-    MC.save(trained, tmp_path / "m")
+    checker.save(trained, tmp_path / "m")
     assert checker.load(tmp_path / "m").config.actions
 
 
@@ -210,7 +210,7 @@ def test_training_lowers_the_loss(streams, actions):
 )
 def test_bad_config_names_the_field(field, value):
     with pytest.raises(ValueError, match=f"MemoryCheckerConfig.{field}"):
-        MC.MemoryCheckerConfig(**{field: value})
+        MM.MemoryCheckerConfig(**{field: value})
 
 
 def test_too_many_streams_per_batch_is_refused(streams):
@@ -236,7 +236,7 @@ def test_cli_refuses_bad_flags_before_any_work(argv, message, capsys):
 
 def test_memoryless_ablation_reads_each_frame_alone(model_and_params):
     model, params = model_and_params
-    ablation = MC.MemoryChecker(dataclasses.replace(SMALL, memory=False))
+    ablation = MM.MemoryChecker(dataclasses.replace(SMALL, memory=False))
     a = _random_frames(jax.random.PRNGKey(4), 1, 12)
     b = a.at[0, :6].set(_random_frames(jax.random.PRNGKey(5), 1, 6)[0])
     starts = jnp.zeros((1, 12), bool).at[0, 0].set(True)
@@ -244,7 +244,7 @@ def test_memoryless_ablation_reads_each_frame_alone(model_and_params):
     la, lb = ablation.apply(params, a, starts, tokens), ablation.apply(params, b, starts, tokens)
     np.testing.assert_array_equal(np.asarray(la)[0, 6:], np.asarray(lb)[0, 6:])
     with pytest.raises(ValueError, match="MemoryCheckerConfig.memory must be a bool"):
-        MC.MemoryCheckerConfig(memory=1)
+        MM.MemoryCheckerConfig(memory=1)
 
 
 def test_run_reports_settings_and_every_split(monkeypatch):
@@ -285,14 +285,12 @@ def _fake_streams(n, t):
 
 
 def test_saved_memory_checker_loads_back_and_refuses_damage(tmp_path):
-    import checker
-
-    trained = MC.new_memory_checker(
+    trained = MM.new_memory_checker(
         SMALL, jax.random.PRNGKey(3), env_id="HazardRooms-v0", label="into"
     )
-    MC.save(trained, tmp_path / "m")
+    checker.save(trained, tmp_path / "m")
     back = checker.load(tmp_path / "m")  # the one loader tells the two kinds apart
-    assert isinstance(back, MC.TrainedMemoryChecker) and back.config == SMALL
+    assert isinstance(back, MM.TrainedMemoryChecker) and back.config == SMALL
     assert back.label == "into"
     chex.assert_trees_all_equal(back.params, trained.params)
     params = tmp_path / "m" / "params.msgpack"
@@ -306,13 +304,13 @@ def test_stream_steps_equal_the_checker_over_the_whole_stream(actions):
     """``stream_start`` then ``stream_step`` frame by frame (what PPO carries per env) gives
     the logits of the stream read at once."""
     config = dataclasses.replace(SMALL, actions=actions)
-    trained = MC.new_memory_checker(config, jax.random.PRNGKey(4))
+    trained = MM.new_memory_checker(config, jax.random.PRNGKey(4))
     rng = np.random.default_rng(0)
     frames = jnp.asarray(rng.integers(0, 6, (3, 9, 7, 7, 3)), jnp.uint8)
     tokens = jnp.asarray(rng.integers(1, 20, (3, 9, SMALL.max_len)), jnp.int32)
     tokens = jnp.broadcast_to(tokens[:, :1], tokens.shape)  # one sentence per stream
     starts = jnp.zeros((3, 9), bool).at[:, 0].set(True)
-    moves = jnp.asarray(rng.integers(0, MC.NO_ACTION, (3, 9)), jnp.int32).at[:, 0].set(MC.NO_ACTION)
+    moves = jnp.asarray(rng.integers(0, MM.NO_ACTION, (3, 9)), jnp.int32).at[:, 0].set(MM.NO_ACTION)
     whole = jax.jit(trained.logits)(frames, starts, tokens, moves)  # jitted: eager is slower
     emb = jax.jit(trained.embed_states)(frames, moves)
     lang = jax.jit(trained.encode_language)(tokens)

@@ -11,7 +11,9 @@ import pytest
 from helpers.cli_help import help_entries
 from helpers.experiment_runs import refused_before_any_compile
 
+import checker
 from checker import memory as MC
+from checker import memory_model as MM
 from experiments import hazard_rooms, memory_phase, phases, pipeline, two_rooms
 from experiments.pipeline import preset
 from jaxgrid import hazard_language as HL
@@ -93,11 +95,11 @@ def test_bad_memory_flags_are_usage_errors_before_any_compile(
 
 
 def _saved_memory_checker(directory, label="next"):
-    small = MC.MemoryCheckerConfig(word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4,
+    small = MM.MemoryCheckerConfig(word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4,
                                    state_dim=8, memory_dim=16, mlp_dim=16)  # fmt: skip
-    trained = MC.new_memory_checker(small, jax.random.PRNGKey(0), env_id="HazardRooms-v0",
+    trained = MM.new_memory_checker(small, jax.random.PRNGKey(0), env_id="HazardRooms-v0",
                                     label=label)  # fmt: skip
-    MC.save(trained, directory)
+    checker.save(trained, directory)
     return trained
 
 
@@ -130,7 +132,7 @@ def _fake_streams(env, key, n, t, guided=0.0):
     return {
         "frames": rng.integers(0, 6, (n, t, 7, 7, 3)).astype(np.uint8),
         "tokens": tokens, "starts": starts,
-        "action": np.where(starts, MC.NO_ACTION, rng.integers(0, MC.NO_ACTION, (n, t))),
+        "action": np.where(starts, MM.NO_ACTION, rng.integers(0, MM.NO_ACTION, (n, t))),
         "label": (rng.random((n, t)) < 0.2).astype(np.int32),
         "next_cost": (rng.random((n, t)) < 0.3).astype(np.float32),
         "cost": np.zeros((n, t), np.float32), "violation": np.zeros((n, t), np.int32),
@@ -241,13 +243,13 @@ def test_the_breakdown_finds_the_checker_each_mode_trained_with(tmp_path):
     of ``shield_checker/``, the other modes' those of ``checker/``."""
     from jax.flatten_util import ravel_pytree
 
-    from checker.trained import params_sha256
+    from checker.store import params_sha256
     from experiments import breakdown
 
     first = _saved_memory_checker(tmp_path / "checker", label="into")
-    own = MC.new_memory_checker(first.config, jax.random.PRNGKey(1), env_id="HazardRooms-v0",
+    own = MM.new_memory_checker(first.config, jax.random.PRNGKey(1), env_id="HazardRooms-v0",
                                 label="into")  # fmt: skip
-    MC.save(own, tmp_path / "shield_checker")
+    checker.save(own, tmp_path / "shield_checker")
     for mode, name in (("shield", "shield_checker"), ("checker", "checker")):
         (tmp_path / "modes" / mode).mkdir(parents=True)
         write_json(tmp_path / "modes" / mode / "run.json",

@@ -23,6 +23,7 @@ import numpy as np
 import checker
 import jaxgrid
 from checker import memory as MC
+from checker import memory_model as MM
 from checker.train import CheckerTrainConfig, train_checker
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "checkers"
@@ -35,7 +36,7 @@ WINDOW_TRAIN = CheckerTrainConfig(
     window=3, lookahead=1, seed=0, epochs=12, batch_size=32, lr=3e-3, patience=12,
     blocked=1, final_windows=True,
 )  # fmt: skip
-MEMORY_MODEL = MC.MemoryCheckerConfig(
+MEMORY_MODEL = MM.MemoryCheckerConfig(
     word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4, state_dim=8, memory_dim=16, mlp_dim=16,
     actions=True,
 )  # fmt: skip
@@ -70,15 +71,8 @@ def train_memory(data: dict | None = None):
     """The memory checker of :data:`MEMORY_MODEL` trained on :func:`memory_data`."""
     data = memory_data() if data is None else data
     params, _ = MC.train_memory_checker(data, MEMORY_MODEL, MEMORY_TRAIN)
-    return MC.TrainedMemoryChecker(params=params, config=MEMORY_MODEL, env_id="HazardRooms-v0",
+    return MM.TrainedMemoryChecker(params=params, config=MEMORY_MODEL, env_id="HazardRooms-v0",
                                    threshold=0.4, label=MEMORY_TRAIN.label)  # fmt: skip
-
-
-def save(trained, directory) -> str:
-    """Save a checker of either kind (the one call each kind is saved with)."""
-    if trained.kind == "memory":
-        return MC.save(trained, directory)
-    return checker.save(trained, directory)
 
 
 def window_inputs(data) -> dict:
