@@ -34,9 +34,9 @@ from jaxgrid.wrappers import BatchedAutoReset
 # mostly forward, doors opened and the key picked up now and then, never drop or done.
 BEHAVIOUR = (0.15, 0.15, 0.55, 0.075, 0.0, 0.075, 0.0)
 
-# What a frame's label says (:func:`relabel`): "next", the step out of the frame violates (the
-# paper's just-before label); "into", the step into the frame violated.
-LABELS = ("next", "into")
+# The label timings of a memory checker (:func:`relabel`): 1, the step out of the frame
+# violates (the paper's just-before label); 0, the step into the frame violated.
+LOOKAHEADS = (0, 1)
 
 
 # ------------------------------------------------------------------------------------ data
@@ -112,18 +112,18 @@ def collect_streams(
     return out
 
 
-def relabel(data: dict, label: str) -> dict:
-    """``data`` (:func:`collect_streams`) with ``label`` saying what a checker of that kind
-    learns: "next" (unchanged), whether the step out of the frame violates, the paper's
-    just-before label, which a learner turns into a penalty before the violation; "into",
+def relabel(data: dict, lookahead: int) -> dict:
+    """``data`` (:func:`collect_streams`) with ``label`` saying what a checker of that
+    ``lookahead`` learns: 1 (unchanged), whether the step out of the frame violates, the
+    paper's just-before label, which a learner turns into a penalty before the violation; 0,
     whether the step into the frame violated (``violation``). A memory checker can tell the
     latter from the frame and its memory alone, while the former also depends on the action
     not yet taken; a shield, which scores the frame each candidate action leads to, asks the
     latter. The episodes' final frames are not in the streams (the auto-reset replaces them),
-    so an "into" checker never sees a violation on an episode's last step."""
-    if label not in LABELS:
-        raise ValueError(f"label must be one of {LABELS}, got {label!r}")
-    if label == "next":
+    so a checker of lookahead 0 never sees a violation on an episode's last step."""
+    if lookahead not in LOOKAHEADS or isinstance(lookahead, bool):
+        raise ValueError(f"lookahead must be one of {LOOKAHEADS}, got {lookahead!r}")
+    if lookahead == 1:
         return data
     return {**data, "label": data["violation"].astype(np.int32)}
 
@@ -143,9 +143,9 @@ class MemoryTrainConfig:
     lr: float = 1e-3  # Adam step size
     positive_weight: float = 10.0  # violations are rare: weight their loss
     guided: float = 0.0  # share of the actions from the BFS oracle (half the streams obey it)
-    # "next": the step out of each frame violates (the paper's just-before label); "into":
-    # the step into it did (what a shield asks of a candidate frame)
-    label: str = "next"
+    # 1: the step out of each frame violates (the paper's just-before label); 0: the step
+    # into it did (what a shield asks of a candidate frame)
+    lookahead: int = 1
     seed: int = 0  # seeds the streams (the test streams: seed + 1000) and the training
 
     def __post_init__(self):
@@ -159,8 +159,9 @@ class MemoryTrainConfig:
                 raise ValueError(f"{me}.{name} must be > 0, got {getattr(self, name)!r}")
         if not 0.0 <= self.guided <= 1.0:
             raise ValueError(f"{me}.guided must be in [0, 1], got {self.guided!r}")
-        if self.label not in LABELS:
-            raise ValueError(f"{me}.label must be one of {LABELS}, got {self.label!r}")
+        if self.lookahead not in LOOKAHEADS or isinstance(self.lookahead, bool):
+            raise ValueError(f"{me}.lookahead must be one of {LOOKAHEADS}, got "
+                             f"{self.lookahead!r}")  # fmt: skip
         if self.batch_streams > self.streams:
             raise ValueError(
                 f"{me}.batch_streams ({self.batch_streams}) exceeds {me}.streams ({self.streams})"
@@ -245,18 +246,18 @@ def _inputs(config: MemoryCheckerConfig, data: dict) -> tuple:
     return tuple(data[k] for k in _inputs_named(config))
 
 
-def late_violation_mask(data: dict, late: int, label: str = "next") -> np.ndarray:
+def late_violation_mask(data: dict, late: int, lookahead: int = 1) -> np.ndarray:
     """bool ``(N, T)``: frames of the episodes whose first violation comes more than ``late``
     steps after their first costly event (a budget counted beyond a window of ``late``
-    frames). Streams begin with a reset, so every episode is seen from its start. ``label``
-    says what ``data["label"]`` marks (:func:`relabel`)."""
-    shift = 1 if label == "next" else 0
+    frames). Streams begin with a reset, so every episode is seen from its start.
+    ``lookahead`` says what ``data["label"]`` marks (:func:`relabel`)."""
+    shift = lookahead
     starts, cost, labels = data["starts"], data["cost"] > 0, data["label"] > 0
     mask = np.zeros(starts.shape, bool)
     for e in range(starts.shape[0]):
         begins = [*np.flatnonzero(starts[e]), starts.shape[1]]
         for a, b in zip(begins[:-1], begins[1:], strict=False):
-            # frame t's cost is the step into it; a "next" label is the step out of it
+            # frame t's cost is the step into it; a lookahead-1 label is the step out of it
             # (t + 1): such labels, unlike ``violation``, keep an episode's final step
             first_cost = np.flatnonzero(cost[e, a:b])
             first_violation = np.flatnonzero(labels[e, a:b]) + shift
@@ -265,11 +266,11 @@ def late_violation_mask(data: dict, late: int, label: str = "next") -> np.ndarra
     return mask
 
 
-def evaluate_streams(probs, data: dict, late: int = 10, label: str = "next") -> dict:
+def evaluate_streams(probs, data: dict, late: int = 10, lookahead: int = 1) -> dict:
     """AUROC of ``probs`` against the labels: overall, per constraint type, on late budget
     violations (:func:`late_violation_mask`) and on the budget frames whose labelled step
     costs (``costly_budget``: is this entry one too many?), with the positive counts behind
-    each. ``label`` says what ``data["label"]`` marks (:func:`relabel`)."""
+    each. ``lookahead`` says what ``data["label"]`` marks (:func:`relabel`)."""
     y, valid = data["label"] > 0, data["valid"]
     report = {"auroc": auroc(y[valid], probs[valid]), "positives": int(y[valid].sum())}
     per_type = {}
@@ -278,12 +279,12 @@ def evaluate_streams(probs, data: dict, late: int = 10, label: str = "next") -> 
         per_type[name] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
     report["per_type"] = per_type
     budget = data["ctype"] == HL.CONSTRAINT_TYPES.index("budget")
-    m = valid & budget & late_violation_mask(data, late, label)
+    m = valid & budget & late_violation_mask(data, late, lookahead)
     report["late_budget"] = {"late": late, "auroc": auroc(y[m], probs[m]),
                              "positives": int(y[m].sum())}  # fmt: skip
     # Counting itself: among budget frames whose labelled step costs, which ones exceed the
     # budget? A checker that does not count cannot rank these (AUROC near 0.5).
-    step_cost = data["next_cost"] if label == "next" else data["cost"]
+    step_cost = data["next_cost"] if lookahead == 1 else data["cost"]
     m = valid & budget & (step_cost > 0)
     report["costly_budget"] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
     return report
@@ -315,11 +316,11 @@ def run(
     data = collect_streams(
         jaxgrid.make(env_id), jax.random.PRNGKey(train.seed), num_envs, num_steps, train.guided
     )
-    data = relabel(data, train.label)
+    data = relabel(data, train.lookahead)
     params, losses = fit(data, config, train, "train memory checker" if progress else None)
     if out is not None:
         save(TrainedMemoryChecker(params=params, config=config, env_id=env_id,
-                                  label=train.label), out)  # fmt: skip
+                                  lookahead=train.lookahead), out)  # fmt: skip
     report = {
         "env_id": env_id,
         "num_envs": num_envs,
@@ -334,9 +335,9 @@ def run(
         test = collect_streams(
             env, jax.random.PRNGKey(train.seed + 1000), num_envs, num_steps, train.guided
         )
-        test = relabel(test, train.label)
+        test = relabel(test, train.lookahead)
         report[split] = evaluate_streams(
-            predict_streams(params, config, test), test, late, train.label
+            predict_streams(params, config, test), test, late, train.lookahead
         )
     report["wall_s"] = time.perf_counter() - t0
     return report
@@ -347,7 +348,8 @@ PROG = "python -m checker.memory"
 
 @dataclasses.dataclass(frozen=True)
 class MemoryRun:
-    """Train the recurrent checker on HazardRooms streams; AUROC per type."""
+    """Train the recurrent checker on HazardRooms streams; AUROC per type. ``--label next|into``
+    (the former name of ``--lookahead``) is read as ``--lookahead 1|0``."""
 
     train: MemoryTrainConfig = MemoryTrainConfig()  # streams (--envs) and training
     late: int = 10  # steps that make a violation late
@@ -380,6 +382,7 @@ def main(argv=None) -> dict:
     from jaxgrid.io import write_json
     from jaxgrid.rundir import lock
 
+    argv = cli.label_flags(sys.argv[1:] if argv is None else argv, "--label", "--lookahead", PROG)
     args = cli.parse(MemoryRun, argv, prog=PROG, description=MemoryRun.__doc__,
                      names={MemoryTrainConfig: {"streams": "envs"}})  # fmt: skip
     with lock(args.out, PROG) if args.out else contextlib.nullcontext():

@@ -14,10 +14,11 @@ ago. :class:`MemoryChecker` carries a recurrent state through the episode instea
 
 With ``MemoryCheckerConfig.actions`` the frame code also reads the action that led into the
 frame: a turn and a step forward can show the same cells, and only the step enters one, so a
-checker of the step into each frame (``label="into"``) needs it most. A learner knows the
+checker of the step into each frame (``lookahead`` 0) needs it most. A learner knows the
 action it took, and a shield the action of each candidate.
 
-:class:`TrainedMemoryChecker` is a trained one (parameters + configuration, one pytree).
+:class:`TrainedMemoryChecker` is a trained one (parameters + configuration, one pytree), a
+:class:`checker.protocol.CheckerProtocol`.
 """
 
 from __future__ import annotations
@@ -31,11 +32,10 @@ import jax
 import jax.numpy as jnp
 
 from checker.model import NUM_COLOURS, NUM_OBJECTS, NUM_STATES, embed_cells, encode_sentence
+from checker.protocol import LABEL_LOOKAHEADS, MOVES, NO_ACTION
 from jaxgrid import hazard_language as HL
 
 _FLAGS = ("memory", "actions")  # MemoryCheckerConfig's bool fields
-#: The "action" into an episode's first frame (one past MiniGrid's seven actions).
-NO_ACTION = 7
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,25 +173,30 @@ class _MemoryStep(nn.Module):
 class TrainedMemoryChecker(struct.PyTreeNode):
     """Parameters (the only pytree leaf) + configuration of a trained :class:`MemoryChecker`.
 
-    It offers the learner's stream interface of the window checker
-    (:class:`checker.model.TrainedChecker`): ``embed_states``, ``encode_language``,
-    ``stream_start`` and ``stream_step``, whose memory is the GRU state ``(E, memory_dim)``
-    instead of the last frames, so PPO carries it per env and its shield scores candidates
-    with it. Pure and jittable.
+    It is a :class:`checker.protocol.CheckerProtocol` whose carry is the GRU state
+    ``(E, memory_dim)``, so PPO carries it per env and its shield scores candidates with it.
+    ``lookahead`` is 1 (the step out of each frame violates, the paper's just-before label) or
+    0 (the step into it did). Pure and jittable.
     """
 
     params: Any
     config: MemoryCheckerConfig = struct.field(pytree_node=False)
     env_id: str = struct.field(pytree_node=False, default="")
     threshold: float = struct.field(pytree_node=False, default=0.5)
-    label: str = struct.field(pytree_node=False, default="next")  # "next" or "into" (relabel)
+    lookahead: int = struct.field(pytree_node=False, default=1)
     kind = "memory"
+    reads = "stream"  # whole streams of frames, starts, sentences (and actions)
     language = HL  # the sentences its token ids spell
+
+    @property
+    def shield_actions(self) -> tuple[int, ...] | None:
+        """A checker of the step into each frame can only alarm where a step enters a cell."""
+        return MOVES if self.lookahead == 0 else None
 
     def record(self) -> dict:
         """What :func:`checker.store.save` records of it beside its parameters."""
         return {"config": dataclasses.asdict(self.config), "env_id": self.env_id,
-                "threshold": self.threshold, "label": self.label}  # fmt: skip
+                "threshold": self.threshold, "lookahead": self.lookahead}  # fmt: skip
 
     @classmethod
     def from_record(cls, meta: dict, read_params) -> TrainedMemoryChecker:
@@ -200,8 +205,7 @@ class TrainedMemoryChecker(struct.PyTreeNode):
         config = MemoryCheckerConfig(**meta["config"])
         template = jax.eval_shape(lambda: init_memory_params(config, jax.random.PRNGKey(0)))
         return cls(params=read_params(template), config=config, env_id=str(meta["env_id"]),
-                   threshold=float(meta["threshold"]),
-                   label=str(meta.get("label", "next")))  # fmt: skip
+                   threshold=float(meta["threshold"]), lookahead=_lookahead(meta))  # fmt: skip
 
     @property
     def module(self) -> MemoryChecker:
@@ -236,8 +240,21 @@ class TrainedMemoryChecker(struct.PyTreeNode):
         return self.stream_step(zeros, emb, lang)[1]
 
 
+def _lookahead(meta: dict) -> int:
+    """A record's lookahead: ``lookahead``, or what the ``label`` of a checker saved before the
+    name was shared means (none: the just-before label, 1)."""
+    if "lookahead" in meta:
+        value = meta["lookahead"]
+    else:
+        value = LABEL_LOOKAHEADS.get(meta.get("label", "next"), meta.get("label"))
+    if value not in (0, 1) or isinstance(value, bool):
+        raise ValueError(f"a memory checker's lookahead is 0 or 1, its record says {value!r}")
+    return int(value)
+
+
 def new_memory_checker(config: MemoryCheckerConfig, key: jax.Array, **meta):
-    """An untrained :class:`TrainedMemoryChecker` (``meta``: ``env_id``, ``threshold``)."""
+    """An untrained :class:`TrainedMemoryChecker` (``meta``: ``env_id``, ``threshold``,
+    ``lookahead``)."""
     return TrainedMemoryChecker(params=init_memory_params(config, key), config=config, **meta)
 
 

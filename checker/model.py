@@ -241,7 +241,9 @@ def params_shape(config: CheckerConfig):
 
 
 class TrainedChecker(struct.PyTreeNode):
-    """Parameters (the only pytree leaf) + static configuration of a trained checker.
+    """Parameters (the only pytree leaf) + static configuration of a trained window checker,
+    a :class:`checker.protocol.CheckerProtocol` whose carry is the embeddings of the last
+    ``window - 1`` frames.
 
     Every method is a thin wrapper over ``Checker(config).apply(params, ...)``, pure and
     jittable; a ``TrainedChecker`` can be passed through ``jax.jit`` as an argument.
@@ -253,7 +255,11 @@ class TrainedChecker(struct.PyTreeNode):
     env_id: str = struct.field(pytree_node=False, default="")
     threshold: float = struct.field(pytree_node=False, default=0.5)
     kind = "window"  # what it remembers: the last frames (checker.memory_model's: "memory")
+    reads = "window"  # windows of the last frames with their sentence
     language = language  # the sentences its token ids spell
+    # A shield asks it about every action: a turn can lead to a state from which its label
+    # expects a violation, and its shields were measured so.
+    shield_actions = None
 
     def record(self) -> dict:
         """What :func:`checker.store.save` records of it beside its parameters."""
@@ -293,7 +299,7 @@ class TrainedChecker(struct.PyTreeNode):
     def classify(self, state_emb: jax.Array, lang: jax.Array) -> jax.Array:
         return self.module.apply(self.params, state_emb, lang, method=Checker.classify)
 
-    # -- streams: what a learner carries per env (shared with the memory checker) --------
+    # -- streams: what a learner carries per env (checker.protocol) ---------------------
     def stream_start(self, emb: jax.Array, lang: jax.Array) -> jax.Array:
         """The memory of episodes whose first frames embed to ``emb`` (E, D): the embeddings
         of the last ``window - 1`` frames (E, n - 1, D), blank frames before the first.

@@ -7,7 +7,7 @@ behaviour agent, windows and a window checker:
 * **data**: whole streams of the agents' own env (its sentences, auto-reset) under the random
   behaviour policy :data:`checker.memory.BEHAVIOUR` (a share of the actions from the BFS
   oracle with ``guided``), labelled by the ground-truth monitor: by default one step ahead
-  (the step out of each frame violates), with ``label="into"`` the step into each frame
+  (the step out of each frame violates), with ``lookahead=0`` the step into each frame
   (:func:`checker.memory.relabel`);
 * **checker**: :func:`checker.memory.train_memory_checker`, saved in ``DIR/checker/``;
 * **the shield's own checker** (``ExperimentConfig.shield_guided``): the same, with another
@@ -67,20 +67,21 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
     env = cfg.ppo.make_env()
     key = jax.random.PRNGKey(cfg.seed)
     data = memory.collect_streams(env, key, settings.streams, settings.steps, settings.guided)
-    data = memory.relabel(data, settings.label)
+    data = memory.relabel(data, settings.lookahead)
     config = memory_model.MemoryCheckerConfig(view_size=env.view_size, actions=cfg.checker_actions)
     params, losses = memory.fit(data, config, settings, phase if cfg.progress else None)
     threshold = cfg.ppo.checker_threshold
     trained = memory_model.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
-                                          threshold=threshold, label=settings.label)  # fmt: skip
+                                                threshold=threshold,
+                                                lookahead=settings.lookahead)  # fmt: skip
     chk.save(trained, ckpt)
     test = memory.collect_streams(env, jax.random.fold_in(key, 1), settings.streams,
                                   settings.steps, settings.guided)  # fmt: skip
-    test = memory.relabel(test, settings.label)
+    test = memory.relabel(test, settings.lookahead)
     probs = memory.predict_streams(params, config, test)
     valid = test["valid"]
     metrics = {**binary_metrics(test["label"][valid], probs[valid], threshold),
-               **memory.evaluate_streams(probs, test, label=settings.label)}  # fmt: skip
+               **memory.evaluate_streams(probs, test, lookahead=settings.lookahead)}  # fmt: skip
     report = {
         "kind": "memory",
         "test": _rates(metrics),  # undefined rates filled as the window checker's report does
@@ -88,7 +89,7 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
         "transfer": None,
         "details": {"test": metrics},
         "training": {"updates": settings.updates, "streams": settings.streams,
-                     "steps": settings.steps, "label": settings.label,
+                     "steps": settings.steps, "lookahead": settings.lookahead,
                      "guided": settings.guided, "actions": config.actions,
                      "train_positives": int(data["label"].sum()),
                      "final_loss": float(np.mean(losses[-50:]))},

@@ -27,6 +27,7 @@ from agents.networks import start_memory
 from agents.runner import ResumeError, precompile
 from agents.runner import run as run_ppo
 from agents.train import make_learner
+from checker.protocol import LABEL_LOOKAHEADS
 from checker.store import params_sha256
 from experiments import provenance, stats
 from jaxgrid.io import holds_declared_default, read_json, to_jsonable, write_json, write_jsonl
@@ -94,6 +95,9 @@ def prepare_out(cfg) -> Path:
             raise ValueError(f"{e}: it records the configuration of the run in --out "
                              f"{cfg.out}; delete it to resume with these flags") from None
         theirs = {k: v for k, v in _flat(saved).items() if k not in free}
+        if "memory_checker.label" in theirs:  # recorded before it was named lookahead
+            label = theirs.pop("memory_checker.label")
+            theirs["memory_checker.lookahead"] = LABEL_LOOKAHEADS.get(label, label)
         diff = sorted(
             k for k in mine.keys() | theirs.keys()
             if mine.get(k) != theirs.get(k)
@@ -266,7 +270,7 @@ def _transfer(cfg, trained, report: dict) -> dict | None:
 
 def load_reused(cfg):
     """``--checker DIR`` loaded and checked against ``cfg`` before anything is written or
-    compiled: a checker whose kind, window, label timing (``--lookahead`` / ``--memory-label``),
+    compiled: a checker whose kind, window, label timing (``--lookahead`` / ``--memory-lookahead``),
     inputs (``--checker-actions``) or view size differ from the experiment's is refused by
     name, since its alarms would mean something else (its vocabulary and sentence length are
     checked by :func:`checker.load`). Returns the trained checker."""
@@ -286,7 +290,8 @@ def load_reused(cfg):
                     ("lookahead", trained.lookahead, cfg.checker_train.lookahead,
                      "--lookahead")]  # fmt: skip
     else:
-        mismatch = [("label", trained.label, cfg.memory_checker.label, "--memory-label"),
+        mismatch = [("lookahead", trained.lookahead, cfg.memory_checker.lookahead,
+                     "--memory-lookahead"),
                     ("actions", trained.config.actions, cfg.checker_actions,
                      "--checker-actions")]  # fmt: skip
     for name, theirs, mine, option in mismatch:

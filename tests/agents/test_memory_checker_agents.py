@@ -11,10 +11,11 @@ import pytest
 from helpers.agents_cases import CHECKER_CONFIG, TINY, fast_jit
 
 import jaxgrid
-from agents.shield import MOVES, make_shield
+from agents.shield import make_shield
 from agents.train import make_learner
 from checker import memory_model as MM
 from checker.model import new_checker
+from checker.protocol import MOVES, NO_ACTION
 from jaxgrid.wrappers import BatchedAutoReset
 
 SENTENCES = (
@@ -86,7 +87,7 @@ def test_the_rollout_scores_each_step_as_the_whole_stream_would(memory_checker, 
     frames = np.zeros((len(streams), length) + images[0].shape[2:], np.uint8)
     starts = np.ones((len(streams), length), bool)
     tokens = np.zeros((len(streams), length, learner.table.shape[1]), np.int32)
-    moves = np.full((len(streams), length), MM.NO_ACTION, np.int32)
+    moves = np.full((len(streams), length), NO_ACTION, np.int32)
     sentence, table = np.asarray(traj.sentence), np.asarray(learner.table)
     for e, rows in enumerate(streams):
         for i, (which, t, start, scored) in enumerate(rows):
@@ -123,11 +124,12 @@ def test_the_shield_trains_and_evaluates_with_the_memory_checker(memory_checker)
 
 
 def test_a_checker_of_the_step_into_each_frame_judges_moves_only(memory_checker):
-    """A memory checker of ``label="into"`` judges the step itself, which only a move can
-    make a violation: its shield scores forward as the all-action shield does and never blocks
-    another action; one of just-before labels (turning may face a hazard) judges them all."""
+    """A memory checker of the step into each frame (``lookahead`` 0) judges the step itself,
+    which only a move can make a violation: its shield scores forward as the all-action shield
+    does and never blocks another action; one of just-before labels (turning may face a
+    hazard) judges them all."""
     env = jaxgrid.make("HazardRooms-v0", sentences=SENTENCES)
-    into = memory_checker.replace(label="into")
+    into = memory_checker.replace(lookahead=0)
     assert make_shield(env, "checker", memory_checker).judged is None
     shield = make_shield(env, "checker", into)
     assert shield.judged == MOVES
@@ -153,7 +155,7 @@ def test_a_shield_of_actions_reads_each_candidate_with_its_action():
     forward for a step-into shield, and each action for an all-action one."""
     env = jaxgrid.make("HazardRooms-v0", sentences=SENTENCES)
     into = MM.new_memory_checker(
-        dataclasses.replace(SMALL, actions=True), jax.random.PRNGKey(6), label="into"
+        dataclasses.replace(SMALL, actions=True), jax.random.PRNGKey(6), lookahead=0
     )
     shield = make_shield(env, "checker", into)
     states, ts = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(2), 16))
@@ -167,4 +169,4 @@ def test_a_shield_of_actions_reads_each_candidate_with_its_action():
         return np.asarray(jax.nn.sigmoid(into.candidate_logits(memory, emb[:, None], lang)))[:, 0]
 
     np.testing.assert_allclose(risk[:, MOVES[0]], score(MOVES[0]), atol=1e-6)
-    assert np.abs(risk[:, MOVES[0]] - score(MM.NO_ACTION)).min() > 0
+    assert np.abs(risk[:, MOVES[0]] - score(NO_ACTION)).min() > 0

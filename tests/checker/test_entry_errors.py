@@ -74,7 +74,7 @@ def test_a_checker_config_without_vocabulary_is_named_not_none():
 def test_memory_help_lists_every_flag_with_its_default(capsys):
     assert exit_code(MC.main, ["--help"]) == 0
     entries = help_entries(capsys.readouterr().out)
-    flags = {"--envs", "--steps", "--updates", "--batch-streams", "--guided", "--label",
+    flags = {"--envs", "--steps", "--updates", "--batch-streams", "--guided", "--lookahead",
              "--seed", "--late", "--memory", "--actions", "--json", "--out", "--overwrite"}
     assert flags <= set(entries), sorted(entries)
     missing = [f for f, text in entries.items() if f != "--help" and "(default:" not in text]

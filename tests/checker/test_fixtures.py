@@ -4,7 +4,8 @@ by ``helpers.checker_fixtures``).
 
 * ``window/`` and ``memory/`` were saved by the tiny training runs of each kind; their
   predictions on the recorded inputs (``expected.npz``) must come back bit for bit;
-* ``memory_into/`` holds the memory checker's parameters saved with the step-into label;
+* ``memory_into/`` holds the memory checker's parameters saved with the step-into label
+  (``"label": "into"``, read as ``lookahead`` 0);
 * rerunning each training run gives the recorded parameter sha256 (``expected.json``).
 """
 
@@ -59,7 +60,7 @@ def test_a_saved_memory_checker_loads_and_predicts_as_recorded(recorded):
 
 def test_the_label_timing_of_saved_memory_checkers_is_read():
     nxt, into = checker.load(F.FIXTURES / "memory"), checker.load(F.FIXTURES / "memory_into")
-    assert (nxt.label, into.label) == ("next", "into")
+    assert (nxt.lookahead, into.lookahead) == (1, 0)
     assert _sha(into) == EXPECTED["params_sha256"]["memory"]
 
 

@@ -22,6 +22,7 @@ import checker
 import jaxgrid
 from checker import memory as MC
 from checker import memory_model as MM
+from checker.protocol import NO_ACTION
 from jaxgrid.constants import FORWARD
 
 SMALL = MM.MemoryCheckerConfig(
@@ -88,7 +89,7 @@ def test_stream_actions_lead_into_each_frame(streams):
     behaviour takes otherwise, and a step forward wherever the step into the frame cost (only
     entering a cell is a constraint event)."""
     d = streams
-    assert (d["action"][d["starts"]] == MM.NO_ACTION).all()
+    assert (d["action"][d["starts"]] == NO_ACTION).all()
     inner = d["action"][~d["starts"]]
     assert set(np.unique(inner).tolist()) == {a for a, p in enumerate(MC.BEHAVIOUR) if p > 0}
     assert 0.45 < (inner == FORWARD).mean() < 0.65  # BEHAVIOUR's 0.55, over ~900 steps
@@ -101,7 +102,7 @@ def test_a_checker_of_actions_reads_the_action_into_each_frame(tmp_path):
     frames = _random_frames(jax.random.PRNGKey(7), 2, 6)
     starts = jnp.zeros((2, 6), bool).at[:, 0].set(True)
     tokens = jnp.ones((2, 6, SMALL.max_len), jnp.int32)
-    a = jnp.full((2, 6), FORWARD, jnp.int32).at[:, 0].set(MM.NO_ACTION)
+    a = jnp.full((2, 6), FORWARD, jnp.int32).at[:, 0].set(NO_ACTION)
     logits = jax.jit(trained.logits)
     la, lb = (
         np.asarray(logits(frames, starts, tokens, a)),
@@ -132,17 +133,17 @@ def test_guided_streams_follow_the_oracle_on_alternate_halves(streams):
 
 
 def test_into_labels_are_the_violation_of_the_step_into_each_frame(streams):
-    into = MC.relabel(streams, "into")
-    assert MC.relabel(streams, "next") is streams
+    into = MC.relabel(streams, 0)
+    assert MC.relabel(streams, 1) is streams
     np.testing.assert_array_equal(into["label"], streams["violation"])
     assert into["label"].dtype == np.int32 and into["label"][streams["starts"]].sum() == 0
     # the same violations, one frame later, except those on an episode's last step
     inner = ~streams["starts"][:, 1:]
     np.testing.assert_array_equal(into["label"][:, 1:][inner], streams["label"][:, :-1][inner])
-    with pytest.raises(ValueError, match="label must be one of"):
-        MC.relabel(streams, "before")
-    with pytest.raises(ValueError, match="label"):
-        MC.MemoryTrainConfig(label="before")
+    with pytest.raises(ValueError, match="lookahead must be one of"):
+        MC.relabel(streams, 2)
+    with pytest.raises(ValueError, match="MemoryTrainConfig.lookahead must be one of"):
+        MC.MemoryTrainConfig(lookahead=2)
 
 
 def test_late_mask_and_report_read_into_labels_one_frame_later():
@@ -150,11 +151,11 @@ def test_late_mask_and_report_read_into_labels_one_frame_later():
     d = _budget_streams(1, 30)
     d["cost"][0, [3, 13]] = 1  # costly steps lead into frames 3 and 13 ...
     d["label"][0, 13] = 1  # ... and the second was one too many: 10 steps later, not late
-    assert not MC.late_violation_mask(d, late=10, label="into").any()
-    assert MC.late_violation_mask(d, late=10, label="next").all()  # read as frame 14
-    report = MC.evaluate_streams(np.where(d["cost"] > 0, 0.5, 0.0), d, 10, label="into")
+    assert not MC.late_violation_mask(d, late=10, lookahead=0).any()
+    assert MC.late_violation_mask(d, late=10, lookahead=1).all()  # read as frame 14
+    report = MC.evaluate_streams(np.where(d["cost"] > 0, 0.5, 0.0), d, 10, lookahead=0)
     assert report["costly_budget"] == {"auroc": 0.5, "positives": 1}
-    report = MC.evaluate_streams(d["label"] * 0.9, d, 10, label="into")
+    report = MC.evaluate_streams(d["label"] * 0.9, d, 10, lookahead=0)
     assert report["costly_budget"]["auroc"] == 1.0 and report["late_budget"]["auroc"] is None
 
 
@@ -255,9 +256,9 @@ def test_run_reports_settings_and_every_split(monkeypatch):
         num_envs=4,
         num_steps=12,
         config=SMALL,
-        train=MC.MemoryTrainConfig(updates=2, batch_streams=2, label="into"),
+        train=MC.MemoryTrainConfig(updates=2, batch_streams=2, lookahead=0),
     )
-    assert report["train_config"]["label"] == "into"
+    assert report["train_config"]["lookahead"] == 0
     assert report["train_config"]["updates"] == 2 and report[
         "checker_config"
     ] == dataclasses.asdict(SMALL)
@@ -286,12 +287,12 @@ def _fake_streams(n, t):
 
 def test_saved_memory_checker_loads_back_and_refuses_damage(tmp_path):
     trained = MM.new_memory_checker(
-        SMALL, jax.random.PRNGKey(3), env_id="HazardRooms-v0", label="into"
+        SMALL, jax.random.PRNGKey(3), env_id="HazardRooms-v0", lookahead=0
     )
     checker.save(trained, tmp_path / "m")
     back = checker.load(tmp_path / "m")  # the one loader tells the two kinds apart
     assert isinstance(back, MM.TrainedMemoryChecker) and back.config == SMALL
-    assert back.label == "into"
+    assert back.lookahead == 0 and back.shield_actions == (FORWARD,)
     chex.assert_trees_all_equal(back.params, trained.params)
     params = tmp_path / "m" / "params.msgpack"
     params.write_bytes(params.read_bytes()[:-7])
@@ -310,7 +311,7 @@ def test_stream_steps_equal_the_checker_over_the_whole_stream(actions):
     tokens = jnp.asarray(rng.integers(1, 20, (3, 9, SMALL.max_len)), jnp.int32)
     tokens = jnp.broadcast_to(tokens[:, :1], tokens.shape)  # one sentence per stream
     starts = jnp.zeros((3, 9), bool).at[:, 0].set(True)
-    moves = jnp.asarray(rng.integers(0, MM.NO_ACTION, (3, 9)), jnp.int32).at[:, 0].set(MM.NO_ACTION)
+    moves = jnp.asarray(rng.integers(0, NO_ACTION, (3, 9)), jnp.int32).at[:, 0].set(NO_ACTION)
     whole = jax.jit(trained.logits)(frames, starts, tokens, moves)  # jitted: eager is slower
     emb = jax.jit(trained.embed_states)(frames, moves)
     lang = jax.jit(trained.encode_language)(tokens)

@@ -4,6 +4,7 @@ policy; its command line, bad input before any compile, and the memory-checker p
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import jax
 import numpy as np
@@ -14,13 +15,14 @@ from helpers.experiment_runs import refused_before_any_compile
 import checker
 from checker import memory as MC
 from checker import memory_model as MM
+from checker.protocol import NO_ACTION
 from experiments import hazard_rooms, memory_phase, phases, pipeline, two_rooms
 from experiments.pipeline import preset
 from jaxgrid import hazard_language as HL
 from jaxgrid.io import write_json
 
 MEMORY_FLAGS = {f"--memory-{n}" for n in ("streams", "steps", "updates", "batch-streams", "lr",
-                                          "positive-weight", "guided", "label")}  # fmt: skip
+                                          "positive-weight", "guided", "lookahead")}  # fmt: skip
 WINDOW_FLAGS = {"--behaviour-steps", "--checker-samples", "--checker-epochs", "--window",
                 "--lookahead"}  # fmt: skip
 
@@ -66,8 +68,8 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
                                          "checker, and two_rooms trains a window checker"):
         dataclasses.replace(preset(two_rooms.SCENARIO), shield_guided=0.5)
     # its checker learns the step into each frame; the window checkers' just-before label
-    assert cfg.memory_checker.label == "into"
-    assert preset(two_rooms.SCENARIO).memory_checker.label == "next"
+    assert cfg.memory_checker.lookahead == 0
+    assert preset(two_rooms.SCENARIO).memory_checker.lookahead == 1
     with pytest.raises(ValueError, match="ExperimentConfig.checker_kind must be one of"):
         dataclasses.replace(cfg, checker_kind="lstm")
     with pytest.raises(ValueError, match="checker_actions: only a memory checker reads actions, "
@@ -84,6 +86,7 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
         (["--memory-streams", "4"], "--memory-batch-streams (8) exceeds --memory-streams (4)"),
         (["--memory-lr", "0"], "--memory-lr must be > 0"),
         (["--memory-label", "before"], "--memory-label must be one of ('next', 'into')"),
+        (["--memory-lookahead", "2"], "--memory-lookahead must be one of (0, 1), got 2"),
         (["--shield-guided", "1.5"], "--shield-guided must be None or a share in [0, 1], got "
                                      "1.5"),
     ],
@@ -94,11 +97,31 @@ def test_bad_memory_flags_are_usage_errors_before_any_compile(
     refused_before_any_compile(hazard_rooms, tmp_path / "run", argv, message, capsys, compiles)
 
 
-def _saved_memory_checker(directory, label="next"):
+def test_the_former_label_flag_and_record_still_mean_their_lookahead(tmp_path):
+    """``--memory-label next|into`` is read as ``--memory-lookahead 1|0``, and a run directory
+    whose ``config.json`` records ``memory_checker.label`` resumes with the same lookahead."""
+    parse = lambda *argv: pipeline.parse_args([*argv, "--quick"], hazard_rooms.SCENARIO)  # noqa: E731
+    assert parse("--memory-label", "next").memory_checker.lookahead == 1
+    assert parse("--memory-label=into").memory_checker.lookahead == 0
+    cfg = dataclasses.replace(parse(), out=str(tmp_path / "run"))
+    phases.prepare_out(cfg)
+    path = tmp_path / "run" / "config.json"
+    record = json.loads(path.read_text())
+    record["memory_checker"] = {**record["memory_checker"], "label": "into"}
+    del record["memory_checker"]["lookahead"]
+    path.write_text(json.dumps(record))
+    phases.prepare_out(cfg)  # resumes
+    path.write_text(json.dumps({**record, "memory_checker": {**record["memory_checker"],
+                                                             "label": "next"}}))  # fmt: skip
+    with pytest.raises(ValueError, match="differs in memory_checker.lookahead"):
+        phases.prepare_out(cfg)
+
+
+def _saved_memory_checker(directory, lookahead=1):
     small = MM.MemoryCheckerConfig(word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4,
                                    state_dim=8, memory_dim=16, mlp_dim=16)  # fmt: skip
     trained = MM.new_memory_checker(small, jax.random.PRNGKey(0), env_id="HazardRooms-v0",
-                                    label=label)  # fmt: skip
+                                    lookahead=lookahead)  # fmt: skip
     checker.save(trained, directory)
     return trained
 
@@ -117,8 +140,8 @@ def test_a_memory_checker_of_the_other_label_is_refused_by_name(tmp_path):
     _saved_memory_checker(tmp_path / "next")
     cfg = preset(hazard_rooms.SCENARIO, "quick")
     cfg = dataclasses.replace(cfg, checker=str(tmp_path / "next"), out=str(tmp_path / "o"))
-    with pytest.raises(ValueError, match="trained with label 'next', and this run asks for "
-                                         "--memory-label 'into'"):  # fmt: skip
+    with pytest.raises(ValueError, match="trained with lookahead 1, and this run asks for "
+                                         "--memory-lookahead 0"):  # fmt: skip
         phases.load_reused(cfg)
 
 
@@ -132,7 +155,7 @@ def _fake_streams(env, key, n, t, guided=0.0):
     return {
         "frames": rng.integers(0, 6, (n, t, 7, 7, 3)).astype(np.uint8),
         "tokens": tokens, "starts": starts,
-        "action": np.where(starts, MM.NO_ACTION, rng.integers(0, MM.NO_ACTION, (n, t))),
+        "action": np.where(starts, NO_ACTION, rng.integers(0, NO_ACTION, (n, t))),
         "label": (rng.random((n, t)) < 0.2).astype(np.int32),
         "next_cost": (rng.random((n, t)) < 0.3).astype(np.float32),
         "cost": np.zeros((n, t), np.float32), "violation": np.zeros((n, t), np.int32),
@@ -246,9 +269,9 @@ def test_the_breakdown_finds_the_checker_each_mode_trained_with(tmp_path):
     from checker.store import params_sha256
     from experiments import breakdown
 
-    first = _saved_memory_checker(tmp_path / "checker", label="into")
+    first = _saved_memory_checker(tmp_path / "checker", lookahead=0)
     own = MM.new_memory_checker(first.config, jax.random.PRNGKey(1), env_id="HazardRooms-v0",
-                                label="into")  # fmt: skip
+                                lookahead=0)  # fmt: skip
     checker.save(own, tmp_path / "shield_checker")
     for mode, name in (("shield", "shield_checker"), ("checker", "checker")):
         (tmp_path / "modes" / mode).mkdir(parents=True)

@@ -64,7 +64,7 @@ def memory_data() -> dict:
     env = jaxgrid.make("HazardRooms-v0")
     data = MC.collect_streams(env, jax.random.PRNGKey(MEMORY_TRAIN.seed), MEMORY_TRAIN.streams,
                               MEMORY_TRAIN.steps, MEMORY_TRAIN.guided)  # fmt: skip
-    return MC.relabel(data, MEMORY_TRAIN.label)
+    return MC.relabel(data, MEMORY_TRAIN.lookahead)
 
 
 def train_memory(data: dict | None = None):
@@ -72,7 +72,7 @@ def train_memory(data: dict | None = None):
     data = memory_data() if data is None else data
     params, _ = MC.train_memory_checker(data, MEMORY_MODEL, MEMORY_TRAIN)
     return MM.TrainedMemoryChecker(params=params, config=MEMORY_MODEL, env_id="HazardRooms-v0",
-                                   threshold=0.4, label=MEMORY_TRAIN.label)  # fmt: skip
+                                   threshold=0.4, lookahead=MEMORY_TRAIN.lookahead)  # fmt: skip
 
 
 def window_inputs(data) -> dict:
