@@ -265,3 +265,16 @@ def init_memory_params(config: MemoryCheckerConfig, key: jax.Array):
     tokens = jnp.zeros(lead + (config.max_len,), jnp.int32)
     actions = jnp.full(lead, NO_ACTION, jnp.int32) if config.actions else None
     return jax.jit(MemoryChecker(config).init)(key, frames, jnp.ones(lead, bool), tokens, actions)
+
+
+STREAM_INPUTS = ("frames", "starts", "tokens", "action")
+
+
+def stream_input_names(config: MemoryCheckerConfig) -> tuple[str, ...]:
+    """The names of the model's inputs: frames, starts, tokens (and the actions it reads)."""
+    return STREAM_INPUTS if config.actions else STREAM_INPUTS[:3]
+
+
+def stream_inputs(config: MemoryCheckerConfig, data: dict) -> tuple:
+    """The model's inputs (:func:`stream_input_names`) from streams ``data``."""
+    return tuple(data[k] for k in stream_input_names(config))

@@ -4,8 +4,8 @@ Run ``python -m experiments.hazard_rooms [--quick | --paper] [--out DIR]``.
 
 The agents' episodes draw one of :data:`SENTENCES`, one or two of each constraint type of
 :mod:`jaxgrid.hazard_language` (the learner encodes a fixed table of sentences). The checker
-is the memory checker (:mod:`checker.memory`, phases in :mod:`experiments.memory_phase`), and
-the policy is recurrent (``PPOConfig(recurrent=True)``), so that both can count. The
+is the memory checker (:mod:`checker.memory_model`, phases in :mod:`experiments.memory_phase`),
+and the policy is recurrent (``PPOConfig(recurrent=True)``), so that both can count. The
 episodic novelty bonus is 0.05 instead of the paper scenarios' 0.01: behind two closed doors
 the goal is too rare a find for a learner that is also penalised. It is capped at 60 bonuses
 an episode, and the goal pays those not yet earned (``novelty_claim``), so that touring the

@@ -51,8 +51,7 @@ from tyro.constructors import PrimitiveConstructorSpec
 
 from agents.config import REWARD_MODES, PPOConfig, check_sweep
 from checker import cli
-from checker.memory import MemoryTrainConfig
-from checker.train import CheckerTrainConfig
+from checker.train import CheckerTrainConfig, MemoryTrainConfig
 from experiments import memory_phase, phases
 from jaxgrid import rundir
 

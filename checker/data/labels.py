@@ -20,6 +20,10 @@ end of the collected rollout are dropped (the last ``k`` positions of every env)
 The windows that end at an episode's final observation (:func:`final_labels`) are labelled by
 the step that ended it, and full-episode datasets carry per-row episode bookkeeping
 (:func:`episode_fields`, :data:`EPISODE_FIELDS`).
+
+A memory checker's streams (:func:`checker.data.collect_streams`) label every frame by the
+step out of it, ``lookahead`` 1; :func:`relabel` gives them lookahead 0, the step into it
+(:data:`STREAM_LOOKAHEADS`).
 """
 
 from __future__ import annotations
@@ -31,6 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 
 MAX_WINDOW = 64
+#: The label timings of a stream (:func:`relabel`): 1, the step out of the frame violates (the
+#: paper's just-before label); 0, the step into the frame violated.
+STREAM_LOOKAHEADS = (0, 1)
 EPISODE_FIELDS = (
     "env_index", "position", "episode", "step", "step_violation", "next_violation", "complete",
 )  # fmt: skip
@@ -127,3 +134,19 @@ def episode_fields(start, violation, t_sel, e_sel, keep) -> dict:
         "next_violation": nxt[t_sel, e_sel].astype(np.uint8),
         "complete": complete[t_sel, e_sel],
     }
+
+
+def relabel(data: dict, lookahead: int) -> dict:
+    """``data`` (:func:`checker.data.collect_streams`) with ``label`` saying what a checker of that
+    ``lookahead`` learns: 1 (unchanged), whether the step out of the frame violates, the
+    paper's just-before label, which a learner turns into a penalty before the violation; 0,
+    whether the step into the frame violated (``violation``). A memory checker can tell the
+    latter from the frame and its memory alone, while the former also depends on the action
+    not yet taken; a shield, which scores the frame each candidate action leads to, asks the
+    latter. The episodes' final frames are not in the streams (the auto-reset replaces them),
+    so a checker of lookahead 0 never sees a violation on an episode's last step."""
+    if lookahead not in STREAM_LOOKAHEADS or isinstance(lookahead, bool):
+        raise ValueError(f"lookahead must be one of {STREAM_LOOKAHEADS}, got {lookahead!r}")
+    if lookahead == 1:
+        return data
+    return {**data, "label": data["violation"].astype(np.int32)}

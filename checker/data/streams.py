@@ -1,4 +1,6 @@
-"""Windows of checker data, collected fully on device and labelled (:mod:`checker.data.labels`).
+"""Checker data collected fully on device: labelled windows for the window checker
+(:func:`collect`, :func:`collect_episodes`) and whole streams for the memory checker
+(:func:`collect_streams`); their labels are :mod:`checker.data.labels`'.
 
 Rollouts
 --------
@@ -68,8 +70,14 @@ from jax import lax
 
 from checker.data.files import CheckerDataset
 from checker.data.labels import all_labels, episode_fields, validate_window
+from checker.protocol import NO_ACTION
 from checker.reward import init_buffer, push
-from jaxgrid.wrappers import AutoReset
+from jaxgrid.oracle import oracle_action
+from jaxgrid.wrappers import AutoReset, BatchedAutoReset
+
+# Behaviour policy over MiniGrid's actions (left, right, forward, pickup, drop, toggle, done):
+# mostly forward, doors opened and the key picked up now and then, never drop or done.
+BEHAVIOUR = (0.15, 0.15, 0.55, 0.075, 0.0, 0.075, 0.0)
 
 
 def _record(state, ts, start, violation):
@@ -399,3 +407,73 @@ def collect_episodes(
         num_steps=num_steps,
         env_id=env_id,
     )
+
+
+def collect_streams(
+    env, key: jax.Array, num_envs: int, num_steps: int, guided: float = 0.0
+) -> dict:
+    """``num_envs`` streams of ``num_steps`` frames of ``BatchedAutoReset(env)`` (fresh
+    layouts drawn only where an episode ended) under :data:`BEHAVIOUR`, from fresh resets.
+
+    ``guided`` > 0 takes each step's action, with that probability, from the BFS oracle
+    (:func:`jaxgrid.oracle.oracle_action`) instead: half of the streams follow the oracle
+    that obeys the constraint, half the one that plans through lava and forbidden doors. A
+    random policy seldom leaves its first room; guided streams pass doors, carry the key and
+    reach the goal, where trained agents go, and violate there too. 0 (the default) draws
+    every action from :data:`BEHAVIOUR`, as before the option existed.
+
+    Returns numpy arrays, ``(N, T, ...)``:
+
+    ``frames`` (uint8 images), ``tokens``, ``starts`` (the frame is an episode's first),
+    ``action`` (the action that led into the frame; :data:`NO_ACTION` at a start),
+    ``label`` (the next step violates: ``info["violation"]`` of the step taken from this
+    frame, which belongs to this frame's episode even when that step ends it), ``next_cost``
+    (that step's ``info["cost"]``), ``cost`` and
+    ``violation`` (of the step that produced the frame; 0 at a start), ``ctype`` and
+    ``template`` (``info``'s ``constraint_type`` and ``template_id``) and ``valid`` (True
+    everywhere: the scan runs the step out of every frame, the last one included, so every
+    frame has its label; the training loss and the metrics take it as a mask).
+    """
+    if not 0.0 <= guided <= 1.0:
+        raise ValueError(f"guided must be a probability in [0, 1], got {guided!r}")
+    wrapped = BatchedAutoReset(env)
+    k_reset, k_run = jax.random.split(key)
+    probs = jnp.asarray(BEHAVIOUR)
+
+    @jax.jit
+    def run(k_reset, k_run):
+        states, ts = wrapped.reset(jax.random.split(k_reset, num_envs))
+
+        def body(carry, k):
+            states, ts, start, last = carry
+            actions = jax.random.choice(k, len(BEHAVIOUR), (num_envs,), p=probs)
+            if guided > 0:  # static: without guidance the streams are drawn as before
+                obey = jnp.arange(num_envs) % 2 == 0  # alternate streams obey the constraint
+                expert = jax.vmap(lambda s, o: oracle_action(s, obey_constraint=o, avoid_lava=o))(
+                    states, obey
+                )
+                follow = jax.random.bernoulli(jax.random.fold_in(k, 1), guided, (num_envs,))
+                actions = jnp.where(follow, expert, actions)
+            new_states, new_ts = wrapped.step(states, actions)
+            frame = {
+                "frames": ts.observation["image"],
+                "tokens": ts.observation["constraint"],
+                "starts": start,
+                "action": jnp.where(start, NO_ACTION, last),
+                "cost": jnp.where(start, 0.0, ts.info["cost"]),
+                "violation": jnp.where(start, 0, ts.info["violation"]).astype(jnp.int32),
+                "ctype": ts.info["constraint_type"],
+                "template": ts.info["template_id"],
+                "label": new_ts.info["violation"].astype(jnp.int32),
+                "next_cost": new_ts.info["cost"],
+            }
+            ended = new_ts.terminated | new_ts.truncated
+            return (new_states, new_ts, ended, actions), frame
+
+        first = (states, ts, jnp.ones(num_envs, bool), jnp.full(num_envs, NO_ACTION, jnp.int32))
+        _, frames = jax.lax.scan(body, first, jax.random.split(k_run, num_steps))
+        return jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), frames)
+
+    out = {k: np.asarray(v) for k, v in run(k_reset, k_run).items()}
+    out["valid"] = np.ones(out["starts"].shape, bool)  # every frame has its next step here
+    return out

@@ -13,9 +13,9 @@ from helpers.cli_help import help_entries
 from helpers.experiment_runs import refused_before_any_compile
 
 import checker
-from checker import memory as MC
 from checker import memory_model as MM
 from checker.protocol import NO_ACTION
+from checker.train import MemoryTrainConfig
 from experiments import hazard_rooms, memory_phase, phases, pipeline, two_rooms
 from experiments.pipeline import preset
 from jaxgrid import hazard_language as HL
@@ -146,7 +146,7 @@ def test_a_memory_checker_of_the_other_label_is_refused_by_name(tmp_path):
 
 
 def _fake_streams(env, key, n, t, guided=0.0):
-    """Streams shaped as :func:`checker.memory.collect_streams`'s, without compiling the env."""
+    """Streams shaped as :func:`checker.data.collect_streams`'s, without compiling the env."""
     rng = np.random.default_rng(int(jax.random.randint(key, (), 0, 2**31 - 1)))
     starts = np.zeros((n, t), bool)
     starts[:, ::8] = True
@@ -169,10 +169,10 @@ def test_the_memory_phase_is_skipped_when_done_and_redone_when_damaged(
 ):
     """A matching checker and report are loaded, not retrained; a report of other parameters
     makes the phase run again (here on a tiny budget of made-up streams), with a message."""
-    monkeypatch.setattr(MC, "collect_streams", _fake_streams)
+    monkeypatch.setattr(memory_phase, "collect_streams", _fake_streams)
     cfg = dataclasses.replace(
         preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
-        memory_checker=MC.MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
+        memory_checker=MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
     )  # fmt: skip
     first, report = memory_phase.train_memory_checker(cfg, tmp_path)
     assert report["kind"] == "memory" and set(report["test"]) == set(phases.CHECKER_KEYS)
@@ -187,10 +187,10 @@ def test_the_memory_phase_is_skipped_when_done_and_redone_when_damaged(
 def test_the_memory_phase_trains_a_checker_of_actions_when_asked(tmp_path, capsys, monkeypatch):
     """``checker_actions`` gives a checker that reads the action into each frame; a resume
     that asks otherwise retrains it, with a message."""
-    monkeypatch.setattr(MC, "collect_streams", _fake_streams)
+    monkeypatch.setattr(memory_phase, "collect_streams", _fake_streams)
     cfg = dataclasses.replace(
         preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
-        memory_checker=MC.MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
+        memory_checker=MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
         checker_actions=True,
     )  # fmt: skip
     trained, report = memory_phase.train_memory_checker(cfg, tmp_path)
@@ -206,11 +206,11 @@ def test_the_shields_own_checker_is_a_phase_of_its_own(tmp_path, capsys, monkeyp
     """``name`` and ``guided`` put a second checker beside the first, trained on other
     streams; a resume with another share of oracle actions retrains it, with a message."""
     shares = []
-    monkeypatch.setattr(MC, "collect_streams", lambda env, key, n, t, guided=0.0: (
+    monkeypatch.setattr(memory_phase, "collect_streams", lambda env, key, n, t, guided=0.0: (
         shares.append(guided) or _fake_streams(env, key, n, t)))  # fmt: skip
     cfg = dataclasses.replace(
         preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
-        memory_checker=MC.MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
+        memory_checker=MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
     )  # fmt: skip
     _, own = memory_phase.train_memory_checker(cfg, tmp_path, name="shield_checker", guided=0.5)
     assert shares == [0.5, 0.5]  # its training and test streams

@@ -22,9 +22,10 @@ import numpy as np
 
 import checker
 import jaxgrid
-from checker import memory as MC
 from checker import memory_model as MM
-from checker.train import CheckerTrainConfig, train_checker
+from checker.data import collect_streams, relabel
+from checker.metrics import predict_streams
+from checker.train import CheckerTrainConfig, MemoryTrainConfig, train_checker, train_memory_checker
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "checkers"
 
@@ -40,7 +41,7 @@ MEMORY_MODEL = MM.MemoryCheckerConfig(
     word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4, state_dim=8, memory_dim=16, mlp_dim=16,
     actions=True,
 )  # fmt: skip
-MEMORY_TRAIN = MC.MemoryTrainConfig(streams=16, steps=48, updates=200, batch_streams=8, lr=3e-3)
+MEMORY_TRAIN = MemoryTrainConfig(streams=16, steps=48, updates=200, batch_streams=8, lr=3e-3)
 
 
 def window_data():
@@ -62,15 +63,15 @@ def train_window():
 def memory_data() -> dict:
     """16 HazardRooms streams of 48 frames of the behaviour policy."""
     env = jaxgrid.make("HazardRooms-v0")
-    data = MC.collect_streams(env, jax.random.PRNGKey(MEMORY_TRAIN.seed), MEMORY_TRAIN.streams,
+    data = collect_streams(env, jax.random.PRNGKey(MEMORY_TRAIN.seed), MEMORY_TRAIN.streams,
                               MEMORY_TRAIN.steps, MEMORY_TRAIN.guided)  # fmt: skip
-    return MC.relabel(data, MEMORY_TRAIN.lookahead)
+    return relabel(data, MEMORY_TRAIN.lookahead)
 
 
 def train_memory(data: dict | None = None):
     """The memory checker of :data:`MEMORY_MODEL` trained on :func:`memory_data`."""
     data = memory_data() if data is None else data
-    params, _ = MC.train_memory_checker(data, MEMORY_MODEL, MEMORY_TRAIN)
+    params, _ = train_memory_checker(data, MEMORY_MODEL, MEMORY_TRAIN)
     return MM.TrainedMemoryChecker(params=params, config=MEMORY_MODEL, env_id="HazardRooms-v0",
                                    threshold=0.4, lookahead=MEMORY_TRAIN.lookahead)  # fmt: skip
 
@@ -105,7 +106,7 @@ def window_predictions(trained, inputs: dict) -> dict:
 def memory_predictions(trained, x: dict) -> dict:
     """What a memory checker says on ``x`` (:func:`memory_inputs`): the streams read at once,
     and read a step at a time from ``stream_start`` (what PPO carries per env)."""
-    probs = MC.predict_streams(trained.params, trained.config, x)
+    probs = predict_streams(trained.params, trained.config, x)
     emb = jax.jit(trained.embed_states)(jnp.asarray(x["frames"]), jnp.asarray(x["action"]))
     lang = jax.jit(trained.encode_language)(jnp.asarray(x["tokens"]))
     start, step = jax.jit(trained.stream_start), jax.jit(trained.stream_step)
