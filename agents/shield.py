@@ -19,9 +19,9 @@ candidate:
 Every constraint event is the agent entering a cell, and only ``forward`` moves the agent, so
 the monitor, a judge of the step itself, is asked about ``forward`` alone (:data:`MOVES`; the
 other actions' risk is 0): seven times fewer candidates, and no false alarm can block a turn.
-A checker is asked about its ``shield_actions`` (a memory checker of the step into each
-frame: :data:`MOVES`; a just-before checker: every action, since turning can lead to a state
-from which a violation is expected next).
+A checker is asked about its ``shield_actions``: a memory checker of the step into each
+frame about :data:`MOVES`, a window checker or a just-before memory checker about every
+action, since turning can lead to a state from which a violation is expected next.
 
 The policy samples from its distribution restricted to the allowed actions (renormalised);
 where every action is blocked, the least risky one stays allowed. PPO learns from that masked

@@ -257,8 +257,8 @@ class TrainedChecker(struct.PyTreeNode):
     kind = "window"  # what it remembers: the last frames (checker.memory_model's: "memory")
     reads = "window"  # windows of the last frames with their sentence
     language = language  # the sentences its token ids spell
-    # A shield asks it about every action: a turn can lead to a state from which its label
-    # expects a violation, and its shields were measured so.
+    # A shield asks it about every action (None): from lookahead 1 on, a turn can lead to a
+    # state from which a violation is expected; its shield results were measured so.
     shield_actions = None
 
     def record(self) -> dict:
