@@ -4,15 +4,15 @@ Run ``python -m experiments.hazard_rooms [--quick | --paper] [--out DIR]``.
 
 The agents' episodes draw one of :data:`SENTENCES`, one or two of each constraint type of
 :mod:`jaxgrid.hazard_language` (the learner encodes a fixed table of sentences). The checker
-is the memory checker (:mod:`checker.memory`, phases in :mod:`experiments.memory_phase`), and
-the policy is recurrent (``PPOConfig(recurrent=True)``), so that both can count. The
+is the memory checker (:mod:`checker.memory_model`, phases in :mod:`experiments.memory_phase`),
+and the policy is recurrent (``PPOConfig(recurrent=True)``), so that both can count. The
 episodic novelty bonus is 0.05 instead of the paper scenarios' 0.01: behind two closed doors
 the goal is too rare a find for a learner that is also penalised. It is capped at 60 bonuses
 an episode, and the goal pays those not yet earned (``novelty_claim``), so that touring the
 rooms never pays more than the goal, and it pays for new cells, not new (cell, carrying)
 pairs (``novelty_carrying=False``): with the key in hand the first room would pay twice, and
 agents stayed in it (``docs/decisions.md``). The memory checker labels each
-frame with the violation of the step into it (``label="into"``), not of the step out of it:
+frame with the violation of the step into it (``lookahead=0``), not of the step out of it:
 a frame and the episode's memory determine the former, while the latter also depends on the
 action not yet taken, and a shield asks about the frame each candidate action leads to.
 The shield has a memory checker of its own (``shield_guided=0.5``): half of its streams'
@@ -40,7 +40,7 @@ SENTENCES = (
 
 SCENARIO = override(
     scenario("hazard_rooms", "HazardRooms-v0"),
-    dict(checker_kind="memory", memory_checker=dict(label="into"), shield_guided=0.5,
+    dict(checker_kind="memory", memory_checker=dict(lookahead=0), shield_guided=0.5,
          ppo=dict(env_kwargs=(("sentences", SENTENCES),), recurrent=True,
                   novelty_bonus=0.05, novelty_claim=60, novelty_carrying=False,
                   film_codes=False, alarm_forward=False)),

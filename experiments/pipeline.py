@@ -51,8 +51,7 @@ from tyro.constructors import PrimitiveConstructorSpec
 
 from agents.config import REWARD_MODES, PPOConfig, check_sweep
 from checker import cli
-from checker.memory import MemoryTrainConfig
-from checker.train import CheckerTrainConfig
+from checker.train import CheckerTrainConfig, MemoryTrainConfig
 from experiments import assembly, memory_phase, phases, scheduling
 from jaxgrid import rundir
 
@@ -397,6 +396,9 @@ UNUSED_FLAGS: dict[str, cli.Names] = {
 def parse_args(argv, scenario_cfg: ExperimentConfig, hide: cli.Names | None = None):
     """The configuration of ``argv``: the preset ``--quick``/``--paper`` names (default: the
     default) of ``scenario_cfg``, then every flag given. ``hide`` removes more flags."""
+    prog = f"python -m experiments.{scenario_cfg.experiment}"
+    argv = cli.label_flags(sys.argv[1:] if argv is None else argv, "--memory-label",
+                           "--memory-lookahead", prog)  # fmt: skip
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     for name in ("quick", "paper"):
         pre.add_argument(f"--{name}", action=argparse.BooleanOptionalAction, default=False)
@@ -407,7 +409,7 @@ def parse_args(argv, scenario_cfg: ExperimentConfig, hide: cli.Names | None = No
     exp = scenario_cfg.experiment
     return cli.parse(
         ExperimentConfig, argv, default=preset(scenario_cfg, name or "default"), names=names,
-        prog=f"python -m experiments.{exp}", description=f"{exp}: the paper's experiment on "
+        prog=prog, description=f"{exp}: the paper's experiment on "
         f"{scenario_cfg.env_id} ({PHASES[scenario_cfg.checker_kind]}, PPO in every reward "
         "mode, report). --quick and --paper change the defaults shown here.",
     )  # fmt: skip
