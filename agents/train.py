@@ -43,6 +43,8 @@ from agents.networks import (
 from agents.rollout import EnvCarry, Transition
 from agents.shield import make_shield, mask_logits
 from jaxgrid import language
+from jaxgrid.constrained import language_table, sentence_tokens
+from jaxgrid.sentences import PAPER
 from jaxgrid.wrappers import BatchedAutoReset
 
 
@@ -79,7 +81,7 @@ class Learner(struct.PyTreeNode):
     table: jax.Array = None  # int32 (K, L): the env's sentence table
     # Real tokens of the table's longest sentence. The sentence encoders run this many steps:
     # on the pad tail a GRU's carry is never read (same features and gradients, fewer steps).
-    words: int = struct.field(pytree_node=False, default=language.MAX_LEN)
+    words: int = struct.field(pytree_node=False, default=PAPER.max_len)
 
     # -- pieces -------------------------------------------------------------------------
     @property
@@ -431,7 +433,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
     shield = None
     if config.shield_judge is not None:
         shield = make_shield(env, config.shield_judge, checker, config.checker_threshold)
-    table = language.sentence_table(env)
+    table = sentence_tokens(env)
 
     def schedule(count):
         per_update = config.update_epochs * config.num_minibatches
@@ -449,7 +451,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
             num_actions=env.num_actions,
             conv_channels=config.conv_channels,
             cell_dim=config.cell_dim,
-            vocab_size=getattr(env, "language", language).vocab_size(),
+            vocab_size=language_table(env).vocab_size,
             recurrent=config.recurrent,
             film_codes=config.film_codes,
             memory_skip=config.memory_skip,

@@ -86,7 +86,7 @@ from jax import lax
 
 from checker.reward import init_buffer, push
 from checker.trained import check_vocab
-from jaxgrid import language
+from jaxgrid import language, sentences
 from jaxgrid.constants import BALL, BOX, CLOSED, COLOR_NAMES, DOOR, EMPTY, KEY, LOCKED
 from jaxgrid.io import atomic_write, read_json, write_json
 from jaxgrid.observation import see_behind, visibility_mask
@@ -144,7 +144,7 @@ class CheckerDataset:
         windows: uint8 ``(N, n, V, V, 3)``, oldest frame first.
         tokens: int32 ``(N, L)`` constraint token ids.
         labels: uint8 ``(N,)``, 1 = violation within the lookahead (see the module docs).
-        template_id: int32 ``(N,)``, ``jaxgrid.language.TEMPLATES`` index.
+        template_id: int32 ``(N,)``, ``jaxgrid.sentences.TEMPLATES`` index.
         constraint_type: int32 ``(N,)``, paper type 1-5.
         scenario: str ``(N,)``, the env id each row came from.
         extras: per-row arrays of full-episode datasets (:data:`EPISODE_FIELDS`), else empty.
@@ -249,8 +249,8 @@ class CheckerDataset:
             "format_version": FORMAT_VERSION,
             "npz_sha256": sha256_bytes(buf.getvalue()),
             **self.meta,
-            "vocab": list(language.VOCAB),
-            "max_len": language.MAX_LEN,
+            "vocab": list(sentences.PAPER.vocab),
+            "max_len": sentences.PAPER.max_len,
         }
         write_json(js, meta)
         return npz, js
@@ -756,7 +756,7 @@ def with_colour_counterfactuals(
             f"colour counterfactuals need lookahead 0 or 1 (exact relabelling), got {lookahead}"
         )
     split = dataset.meta.get("split") or "all"
-    combos = language.split_combinations(split)
+    combos = sentences.split_combinations(split)
     by_template: dict[int, list[str]] = {}
     for t, c in combos:
         by_template.setdefault(t, []).append(c)
@@ -777,13 +777,13 @@ def with_colour_counterfactuals(
         others = [c for c in by_template.get(t, []) if c not in named]
         if len(named) != 1 or not others:
             continue
-        if language.TEMPLATES[t].has_lava and not (
+        if sentences.TEMPLATES[t].has_lava and not (
             ahead[r] and door_ahead[r] == COLOR_NAMES.index(named[0])
         ):
             continue
         for c in rng.choice(others, size=min(per_positive, len(others)), replace=False):
             rows.append(r)
-            tokens.append(language.tokenize(language.render(t, str(c))))
+            tokens.append(sentences.PAPER.tokenize(sentences.render(t, str(c))))
     if not rows:
         return dataset
     rows = np.asarray(rows)

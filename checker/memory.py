@@ -52,8 +52,9 @@ from checker.trained import (
     read_params,
     write_params,
 )
-from jaxgrid import hazard_language as HL
+from jaxgrid import language
 from jaxgrid.oracle import oracle_action
+from jaxgrid.sentences import HAZARD_ROOMS
 from jaxgrid.wrappers import BatchedAutoReset
 
 # Behaviour policy over MiniGrid's actions (left, right, forward, pickup, drop, toggle, done):
@@ -75,8 +76,8 @@ class MemoryCheckerConfig:
     """Sizes of :class:`MemoryChecker` (every field a positive int)."""
 
     view_size: int = 7
-    max_len: int = HL.MAX_LEN
-    vocab_size: int = HL.vocab_size()
+    max_len: int = HAZARD_ROOMS.max_len
+    vocab_size: int = HAZARD_ROOMS.vocab_size
     word_dim: int = 32
     gru_dim: int = 64  # sentence code
     cell_dim: int = 16
@@ -273,8 +274,8 @@ def save(trained: TrainedMemoryChecker, directory) -> str:
         "env_id": trained.env_id,
         "threshold": trained.threshold,
         "label": trained.label,
-        "vocab": list(HL.VOCAB),
-        "max_len": HL.MAX_LEN,
+        "vocab": list(HAZARD_ROOMS.vocab),
+        "max_len": HAZARD_ROOMS.max_len,
     }
     return write_params(trained.params, directory, meta)
 
@@ -282,7 +283,7 @@ def save(trained: TrainedMemoryChecker, directory) -> str:
 def load(directory, meta: dict | None = None) -> TrainedMemoryChecker:
     """The memory checker saved in ``directory`` (errors as :func:`checker.load`'s)."""
     meta = read_meta(directory) if meta is None else meta
-    check_vocab(meta, f"checker {directory}", HL)
+    check_vocab(meta, f"checker {directory}", HAZARD_ROOMS)
     config = MemoryCheckerConfig(**meta["config"])
     template = jax.eval_shape(lambda: _init(config, jax.random.PRNGKey(0)))
     params = read_params(directory, template, meta)
@@ -526,11 +527,11 @@ def evaluate_streams(probs, data: dict, late: int = 10, label: str = "next") -> 
     y, valid = data["label"] > 0, data["valid"]
     report = {"auroc": auroc(y[valid], probs[valid]), "positives": int(y[valid].sum())}
     per_type = {}
-    for i, name in enumerate(HL.CONSTRAINT_TYPES):
+    for i, name in enumerate(language.CONSTRAINT_TYPES):
         m = valid & (data["ctype"] == i)
         per_type[name] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
     report["per_type"] = per_type
-    budget = data["ctype"] == HL.CONSTRAINT_TYPES.index("budget")
+    budget = data["ctype"] == language.CONSTRAINT_TYPES.index("budget")
     m = valid & budget & late_violation_mask(data, late, label)
     report["late_budget"] = {"late": late, "auroc": auroc(y[m], probs[m]),
                              "positives": int(y[m].sum())}  # fmt: skip

@@ -234,17 +234,17 @@ def colour_counterfactual(trained, dataset, threshold: float | None = None, seed
     ``flip_rate`` (fraction of detected positives that fall below the threshold once
     recoloured), and the mean probabilities of both; ``None`` entries if there is no such row.
     """
-    from jaxgrid import language
+    from jaxgrid import language, sentences
 
     thr = trained.threshold if threshold is None else float(threshold)
-    lava_free = np.array([not t.has_lava for t in language.TEMPLATES])
+    lava_free = np.array([not t.has_lava for t in sentences.TEMPLATES])
     tid = np.asarray(dataset.template_id)
     rows = np.flatnonzero((np.asarray(dataset.labels) > 0) & lava_free[np.clip(tid, 0, None)])
     if len(rows) == 0:
         return {"n": 0, "auroc": None, "flip_rate": None, "mean_prob": None,
                 "mean_prob_counterfactual": None}  # fmt: skip
     tokens = np.array(dataset.tokens[rows])
-    colour_ids = np.array([language.VOCAB.index(c) for c in language.DOOR_COLOURS])
+    colour_ids = np.array([language.VOCAB.index(c) for c in sentences.DOOR_COLOURS])
     rng = np.random.default_rng(seed)
     is_colour = np.isin(tokens, np.array([language.VOCAB.index(c) for c in language.COLOURS]))
     for r in range(len(rows)):

@@ -26,9 +26,9 @@ import jax.numpy as jnp
 from flax import serialization, struct
 
 from checker.model import Checker, CheckerConfig, candidate_logits, init_params, params_shape
-from jaxgrid import language
 from jaxgrid.io import atomic_write, read_json, write_json
 from jaxgrid.rundir import LOCK_FILE, sha256_bytes, writing
+from jaxgrid.sentences import PAPER, SentenceTable
 
 PARAMS_FILE = "params.msgpack"
 CONFIG_FILE = "config.json"
@@ -117,23 +117,23 @@ def new_checker(
     )
 
 
-def _vocab_meta(lang=language) -> dict:
-    return {"vocab": list(lang.VOCAB), "max_len": lang.MAX_LEN}
+def _vocab_meta(table: SentenceTable = PAPER) -> dict:
+    return {"vocab": list(table.vocab), "max_len": table.max_len}
 
 
-def check_vocab(meta: dict, where: str, lang=language) -> None:
-    """Raise ``ValueError`` if ``meta`` (with ``vocab``/``max_len``) is not the vocabulary of
-    ``lang`` (a language module: :mod:`jaxgrid.language` or :mod:`jaxgrid.hazard_language`)."""
+def check_vocab(meta: dict, where: str, table: SentenceTable = PAPER) -> None:
+    """Raise ``ValueError`` if ``meta`` (with ``vocab``/``max_len``) is not the token layout of
+    ``table`` (a :class:`jaxgrid.sentences.SentenceTable`: the paper's, HazardRooms')."""
     vocab, max_len = meta.get("vocab"), meta.get("max_len")
     if not isinstance(vocab, list):
         raise ValueError(f"{where}: its {CONFIG_FILE} records no constraint vocabulary (not a "
                          "checker's, or damaged), so its token ids cannot be checked")  # fmt: skip
-    if vocab != list(lang.VOCAB) or max_len != lang.MAX_LEN:
+    if vocab != list(table.vocab) or max_len != table.max_len:
         raise ValueError(
             f"{where} was made for another constraint vocabulary ({len(vocab)} words, MAX_LEN "
             f"{max_len}); "
-            f"this {lang.__name__} has {lang.vocab_size()} words and MAX_LEN "
-            f"{lang.MAX_LEN}, so its token ids would mean other words"
+            f"the {table.name} sentence table has {table.vocab_size} words and MAX_LEN "
+            f"{table.max_len}, so its token ids would mean other words"
         )
 
 

@@ -1,4 +1,4 @@
-"""The exact monitor of :mod:`jaxgrid.hazard_language` constraints: a jittable state machine.
+"""The exact monitor of :mod:`jaxgrid.language` constraints: a jittable state machine.
 
 A constraint is encoded once on the host (:func:`encode`) into a :class:`ClauseSpec` of small
 integer arrays, one entry per clause slot (:data:`NUM_CLAUSES`; a one-clause constraint leaves
@@ -9,7 +9,7 @@ episode), a per-clause event counter and a per-clause "triggered" flag. :func:`u
 advances it by one environment step and returns the step's cost and violation. Everything is
 a handful of array lookups, so the monitor adds little to a vmapped step.
 
-Rules (see :mod:`jaxgrid.hazard_language`): an event is the agent entering a cell of its
+Rules (see :mod:`jaxgrid.language`): an event is the agent entering a cell of its
 clause's zone; it is costly when the clause is armed (always, after its trigger, or before
 it); a costly event is a violation once the clause's count exceeds its budget (0 for every
 type but budget). A trigger updates its flag after the step's events are judged.
@@ -23,14 +23,7 @@ import numpy as np
 from flax import struct
 
 from jaxgrid.constants import BALL, BOX, COLOR_TO_IDX, DOOR, EMPTY, FLOOR, KEY, LAVA
-from jaxgrid.hazard_language import (
-    MAX_BUDGET,
-    MAX_DISTANCE,
-    Clause,
-    HazardConstraint,
-    Target,
-    Trigger,
-)
+from jaxgrid.language import MAX_BUDGET, MAX_DISTANCE, Clause, Constraint, Target, Trigger
 
 __all__ = [
     "NUM_CLAUSES", "ClauseSpec", "Monitor", "empty_slot", "encode", "start", "update", "zone_masks",
@@ -116,13 +109,13 @@ def _encode_clause(c: Clause | None) -> tuple:
     )
 
 
-def encode(constraint: HazardConstraint | Clause | tuple) -> ClauseSpec:
+def encode(constraint: Constraint | Clause | tuple) -> ClauseSpec:
     """Numpy :class:`ClauseSpec` of a constraint (or one clause, or a tuple of clauses).
 
     Raises ``ValueError`` for a clause count outside 0..MAX_BUDGET or a distance outside
     0..MAX_DISTANCE (a clause built by hand; parsed ones are always in range).
     """
-    if isinstance(constraint, HazardConstraint):
+    if isinstance(constraint, Constraint):
         clauses = constraint.clauses
     elif isinstance(constraint, Clause):
         clauses = (constraint,)

@@ -194,7 +194,7 @@ def rollout_oracle(
     * ``length``: int32, steps taken until the episode ended (``max_steps`` if it did not);
     * ``done``: bool, the episode terminated or was truncated within ``max_steps``;
     * ``constraint_type``: int32, paper type 1-5 (0 for envs without a constraint); for a
-      :mod:`jaxgrid.hazard_language` constraint, its index in ``CONSTRAINT_TYPES``;
+      HazardRooms constraint, its index in :data:`jaxgrid.language.CONSTRAINT_TYPES`;
     * ``door_colour`` and ``forbids_lava``: the episode's constraint (-1 / False if none).
 
     The loop is jitted once per environment configuration, episode count and horizon; the

@@ -26,28 +26,25 @@ import numpy as np
 from flax import struct
 
 from jaxgrid import grid as G
-from jaxgrid import language
+from jaxgrid import sentences
 from jaxgrid.constants import (
-    BLUE,
     CLOSED,
+    COLOR_TO_IDX,
     DOOR,
     GOAL_CELL,
-    GREY,
     KEY,
     LAVA,
     LAVA_CELL,
     LOCKED,
-    PURPLE,
-    RED,
     WALL_CELL,
-    YELLOW,
 )
 from jaxgrid.dynamics import get_cell, transition
 from jaxgrid.environment import Environment, check_action
+from jaxgrid.paraphrases import SPLITS
 from jaxgrid.types import State, TimeStep
 
-DOOR_COLOURS = np.array([RED, BLUE, PURPLE, YELLOW, GREY], np.int32)  # never green (the goal)
-SPLITS = ("train", "heldout", "all")
+#: Door colours, MiniGrid indices: the five non-green colours the tables name (never the goal's).
+DOOR_COLOURS = np.array([COLOR_TO_IDX[c] for c in sentences.DOOR_COLOURS], np.int32)
 
 
 @struct.dataclass
@@ -55,7 +52,7 @@ class Constraint:
     """The episode's constraint: what the agent reads and what the monitor checks."""
 
     tokens: jax.Array  # int32 (MAX_LEN,) token ids
-    template_id: jax.Array  # int32, language.TEMPLATES index
+    template_id: jax.Array  # int32, sentences.TEMPLATES index
     paper_type: jax.Array  # int32, 1-5
     door_colour: jax.Array  # int32 colour index of the forbidden door
     forbids_lava: jax.Array  # bool
@@ -102,7 +99,7 @@ class Scenario(Environment):
     """Base of the constrained scenarios: constraint sampling, observation, monitor.
 
     ``split`` selects the (template, colour) combinations constraints are drawn from
-    (``"train"``, ``"heldout"`` or ``"all"``; see :func:`jaxgrid.language.split_combinations`).
+    (``"train"``, ``"heldout"`` or ``"all"``; see :func:`jaxgrid.sentences.split_combinations`).
     ``absent_colour_prob`` (a pytree leaf, so it can be vmapped) is the chance that the
     constraint names a colour no door in the episode has.
     """
@@ -110,6 +107,8 @@ class Scenario(Environment):
     split: str = struct.field(pytree_node=False, default="train")
     absent_colour_prob: float = 0.2
     has_lava: bool = struct.field(pytree_node=False, default=False)
+
+    language_table = sentences.PAPER  # the table of ``obs["constraint"]``
 
     def __post_init__(self):
         super().__post_init__()
@@ -121,7 +120,7 @@ class Scenario(Environment):
             raise ValueError(f"{name}.absent_colour_prob must be in [0, 1], got {p!r}")
 
     def constraint_table(self) -> dict:
-        return language.combination_table(self.split, include_lava=self.has_lava)
+        return sentences.combination_table(self.split, include_lava=self.has_lava)
 
     def layout(self, u: jax.Array):
         """``(grid, agent_pos, goal_pos, nameable door colours, all door colours)``."""

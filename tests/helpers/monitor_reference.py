@@ -1,6 +1,6 @@
 """A plain-Python monitor of hazard-language constraints, written from the rules in prose.
 
-It reads a parsed :class:`~jaxgrid.hazard_language.HazardConstraint` (never the numeric
+It reads a parsed :class:`~jaxgrid.language.Constraint` (never the numeric
 encoding the jitted monitor uses) and a grid as numpy, and judges one step at a time with
 Python loops, so the two implementations share nothing but the parser.
 """

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from helpers.monitor_reference import ReferenceMonitor
 
-from jaxgrid import hazard_language as HL
+from jaxgrid import language as L
 from jaxgrid import monitor as M
 from jaxgrid.hazard import HazardRooms
 
@@ -53,10 +53,10 @@ def _play(env, key, n):
 def _compare(env, seed, n):
     first, steps = _play(env, jax.random.key(seed), n)
     first, steps = jax.tree.map(np.asarray, (first.replace(key=None), steps))
-    counted = np.zeros(len(HL.CONSTRAINT_TYPES), int)
+    counted = np.zeros(len(L.CONSTRAINT_TYPES), int)
     for e in range(n):
-        sentence = HL.detokenize(first.extras.constraint.tokens[e])
-        ref = ReferenceMonitor(HL.parse(sentence), first.grid[e])
+        sentence = L.detokenize(first.extras.constraint.tokens[e])
+        ref = ReferenceMonitor(L.parse(sentence), first.grid[e])
         for t in range(env.max_steps):
             if not steps["active"][t, e]:
                 break
@@ -73,7 +73,7 @@ def _compare(env, seed, n):
 @pytest.mark.parametrize("steps_per_type", [3_000, pytest.param(100_000, marks=pytest.mark.slow)])
 def test_monitor_matches_the_reference(steps_per_type):
     env = HazardRooms(width=13, height=13, max_steps=150)
-    n = int(steps_per_type * len(HL.CONSTRAINT_TYPES) / env.max_steps * 1.3)
+    n = int(steps_per_type * len(L.CONSTRAINT_TYPES) / env.max_steps * 1.3)
     counted, steps = _compare(env, 0, n)
     assert counted.min() >= steps_per_type, counted
     # The comparison saw every outcome: costs, violations, and costs without violations.
@@ -88,7 +88,7 @@ def test_budget_counts_every_entry_and_flags_those_beyond_it():
     grid[..., 0] = 1
     for x in (2, 4, 6):
         grid[x, 1] = (9, 0, 0)
-    spec = M.encode(HL.parse("do not step on lava more than twice"))
+    spec = M.encode(L.parse("do not step on lava more than twice"))
     mon = M.start(spec, jnp.asarray(grid))
     results = []
     for x in range(8):
@@ -106,7 +106,7 @@ def test_turning_in_a_zone_is_no_new_event():
     grid = np.zeros((5, 5, 3), np.uint8)
     grid[..., 0] = 1
     grid[2, 2] = (9, 0, 0)
-    mon = M.start(M.encode(HL.parse("never stand next to lava")), jnp.asarray(grid))
+    mon = M.start(M.encode(L.parse("never stand next to lava")), jnp.asarray(grid))
     stay = jnp.array([2, 1])
     empty = jnp.array([1, 0, 0])
     mon, cost, violation = M.update(mon, jnp.array([2, 0]), stay, empty, empty)
@@ -116,6 +116,6 @@ def test_turning_in_a_zone_is_no_new_event():
 
 
 def test_encode_rejects_three_clauses():
-    c = HL.parse("avoid lava").clauses[0]
+    c = L.parse("avoid lava").clauses[0]
     with pytest.raises(ValueError, match="1 to 2 clauses"):
         M.encode((c, c, c))

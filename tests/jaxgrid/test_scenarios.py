@@ -12,7 +12,7 @@ from helpers.scenario_resets import SCENARIOS, resets
 from helpers.xla import CHEAP
 
 import jaxgrid
-from jaxgrid import language
+from jaxgrid import language, sentences
 from jaxgrid.constants import (
     CLOSED,
     DIR_TO_VEC,
@@ -196,11 +196,12 @@ def test_observation_carries_the_constraint_tokens(name):
     np.testing.assert_array_equal(ts.info["template_id"], c.template_id)
     assert not ts.info["violation"].any()
     for i in range(1000):
-        meaning = language.parse(language.detokenize(c.tokens[i]))
-        assert meaning.colour_index == c.door_colour[i]
-        assert meaning.forbids_lava == bool(c.forbids_lava[i])
-        assert meaning.template_id == c.template_id[i]
-        assert meaning.paper_type == c.paper_type[i]
+        sentence = language.detokenize(c.tokens[i])
+        door, *lava = language.parse(sentence).clauses
+        assert language.COLOURS.index(door.target.colour) == c.door_colour[i]
+        assert bool(lava) == bool(c.forbids_lava[i])
+        row = sentences.PAPER.find(sentence)
+        assert (row.template_id, row.type_id) == (c.template_id[i], c.paper_type[i])
     if name != "TwoRoomsLava-v0":
         assert not c.forbids_lava.any()  # lava clauses only where there is lava
     else:
@@ -308,13 +309,13 @@ def test_split_controls_the_combinations(name, split):
     states, _ = resets(name, split=split)
     c = states.extras.constraint
     has_lava = name == "TwoRoomsLava-v0"
-    allowed = set(language.split_combinations(split, include_lava=has_lava))
+    allowed = set(sentences.split_combinations(split, include_lava=has_lava))
     pairs = zip(c.template_id, c.door_colour, strict=True)
     seen = {(int(t), language.COLOURS[col]) for t, col in pairs}
     assert seen <= allowed
     if split == "train":
         assert len(seen) > 0.8 * len(allowed)  # and it covers the split
-    held = {(t, col) for t, col in allowed if language.is_heldout(t, col)}
+    held = {(t, col) for t, col in allowed if sentences.is_heldout(t, col)}
     assert held == (allowed if split == "heldout" else set())
 
 
