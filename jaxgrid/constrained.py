@@ -1,13 +1,95 @@
-"""What code outside an environment reads of its constraint: its sentence table and tokens."""
+"""The shared base of the constrained environments: their state, observation and info.
+
+Every environment whose episodes carry a constraint (the paper's scenarios, HazardRooms)
+derives from :class:`ConstrainedEnvironment`: ``state.extras`` is a :class:`ConstrainedExtras`
+(the episode's :class:`EpisodeConstraint` and its :class:`~jaxgrid.monitor.Monitor`), the
+observation adds the constraint's token ids, and ``info`` reports the step's ``violation`` and
+``cost``, judged by the monitor alone (:meth:`ConstrainedEnvironment.judge`), with the
+constraint's ``constraint_type`` and ``template_id``.
+"""
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
+from jaxgrid import monitor as M
+from jaxgrid.environment import Environment
 from jaxgrid.language import PAD, VOCAB
 from jaxgrid.sentences import PAPER, SentenceTable
+from jaxgrid.types import State
 
-__all__ = ["language_table", "sentence_tokens"]
+__all__ = [
+    "ConstrainedEnvironment",
+    "ConstrainedExtras",
+    "DoorConstraint",
+    "EpisodeConstraint",
+    "language_table",
+    "sentence_tokens",
+]
+
+
+@struct.dataclass
+class EpisodeConstraint:
+    """The episode's constraint as the agent reads it and metrics group it."""
+
+    tokens: jax.Array  # int32 (max_len,) token ids of the env's language table
+    type_id: jax.Array  # int32 info["constraint_type"]: the table's type of the sentence
+    template_id: jax.Array  # int32 template of the table's row (-1: a given sentence)
+
+
+@struct.dataclass
+class DoorConstraint(EpisodeConstraint):
+    """A constraint forbidding one door colour (the paper's table), which planners read: the
+    oracle plans around ``door_colour``, so that a policy may plan with another colour."""
+
+    door_colour: jax.Array  # int32 MiniGrid colour index of the forbidden door
+
+
+@struct.dataclass
+class ConstrainedExtras:
+    """``state.extras`` of a constrained environment; subclasses add their own fields."""
+
+    constraint: EpisodeConstraint
+    monitor: M.Monitor
+
+
+class ConstrainedEnvironment(Environment):
+    """Base of every environment with a constraint per episode (see the module docstring).
+
+    Subclasses implement :meth:`generate` (whose state's extras are a
+    :class:`ConstrainedExtras`), and in ``step`` call :meth:`judge` between the transition and
+    anything that moves the agent on.
+    """
+
+    def observe(self, state: State) -> dict:
+        obs = super().observe(state)
+        obs["constraint"] = state.extras.constraint.tokens
+        return obs
+
+    def info(self, state: State) -> dict:
+        return self.step_info(state, jnp.zeros((), bool), jnp.zeros((), jnp.float32))
+
+    def step_info(self, state: State, violation: jax.Array, cost: jax.Array) -> dict:
+        """The info of a step that ended in ``state``."""
+        c = state.extras.constraint
+        return {
+            "violation": violation,
+            "cost": cost,
+            "constraint_type": c.type_id,
+            "template_id": c.template_id,
+        }
+
+    def judge(self, before: State, after: State) -> tuple[State, jax.Array, jax.Array]:
+        """``(after, cost, violation)``: the monitor advanced by the step ``before -> after``
+        (the transition's result, before anything moves the agent on) and kept in ``after``."""
+        monitor, cost, violation = M.update(
+            before.extras.monitor, before.agent_pos, after.agent_pos, before.carrying,
+            after.carrying,
+        )  # fmt: skip
+        return after.replace(extras=after.extras.replace(monitor=monitor)), cost, violation
 
 
 def language_table(env) -> SentenceTable:

@@ -64,11 +64,12 @@ from jaxgrid.constants import (
     WALL_CELL,
     YELLOW,
 )
+from jaxgrid.constrained import ConstrainedEnvironment, ConstrainedExtras, EpisodeConstraint
 from jaxgrid.dynamics import get_cell, transition
-from jaxgrid.environment import Environment, check_action
+from jaxgrid.environment import check_action
 from jaxgrid.oracle import distance_field, passable_cells
 from jaxgrid.paraphrases import SPLITS
-from jaxgrid.scenarios import _distinct_colours
+from jaxgrid.scenarios import DOOR_COLOURS
 from jaxgrid.sentences import (
     HAZARD_ROOMS,
     HAZARD_ROOMS_FLOORS,
@@ -132,7 +133,6 @@ def check_sentence(sentence: str) -> language.Constraint:
 def _rows_to_arrays(rows: list[tuple[str, language.Constraint, int, int]]) -> dict:
     """Numeric table: ``tokens``, ``length``, ``type_id``, ``template_id``, ``target_id`` and
     ``spec`` (a :class:`~jaxgrid.monitor.ClauseSpec` of ``(R, NUM_CLAUSES)`` arrays)."""
-    specs = [M.encode(c) for _, c, _, _ in rows]
     targets = HAZARD_ROOMS_TARGETS
     return {
         "tokens": HAZARD_ROOMS.tokenize_batch(s for s, *_ in rows),
@@ -146,7 +146,7 @@ def _rows_to_arrays(rows: list[tuple[str, language.Constraint, int, int]]) -> di
             ],
             np.int32,
         ),  # fmt: skip
-        "spec": jax.tree.map(lambda *xs: np.stack(xs), *specs),
+        "spec": M.encode_batch(c for _, c, _, _ in rows),
     }
 
 
@@ -169,18 +169,10 @@ def _sentence_table(sentences: tuple[str, ...]) -> dict:
 
 
 @struct.dataclass
-class EpisodeConstraint:
-    """The episode's constraint as the agent reads it (tokens) and metrics group it."""
+class HazardExtras(ConstrainedExtras):
+    """The constraint (``type_id`` an index into :data:`jaxgrid.language.CONSTRAINT_TYPES`,
+    ``template_id`` the first clause's, -1 for a given sentence) and monitor, and the goal."""
 
-    tokens: jax.Array  # int32 (MAX_LEN,)
-    type_id: jax.Array  # int32, index into CONSTRAINT_TYPES
-    template_id: jax.Array  # int32, first clause's template (-1 for a given sentence)
-
-
-@struct.dataclass
-class HazardExtras:
-    constraint: EpisodeConstraint
-    monitor: M.Monitor
     goal_pos: jax.Array  # int32 (2,)
     satisfiable: jax.Array  # bool: the goal is reachable without entering any zone
 
@@ -210,7 +202,7 @@ def _slot(spec: M.ClauseSpec, row, slot: int) -> M.ClauseSpec:
     return jax.tree.map(lambda a: a[row, slot], spec)
 
 
-class HazardRooms(Environment):
+class HazardRooms(ConstrainedEnvironment):
     """Four rooms, doors, a key, costly lava and floor strips, a rich constraint per episode.
 
     Static settings: ``split`` (table rows drawn from, as the paper's scenarios), ``budgets``
@@ -279,7 +271,7 @@ class HazardRooms(Environment):
         xs, ys = G.coords(w, h)
         grid = jnp.asarray(G.room(w, h))
         grid = jnp.where(((xs == mx) | (ys == my))[..., None], jnp.asarray(WALL_CELL), grid)
-        colours = _distinct_colours(u[0:4], 4)
+        colours = G.distinct(u[0:4], DOOR_COLOURS, 4)
         # Doors: top and bottom of the vertical wall, left and right of the horizontal one.
         doors = [
             (mx, G.randint(u[4], 1, my)),
@@ -447,23 +439,12 @@ class HazardRooms(Environment):
         extras = HazardExtras(constraint=ec, monitor=monitor, goal_pos=goal, satisfiable=ok)
         return self.init_state(grid, agent, direction, key, extras)
 
-    # --- observation, step ----------------------------------------------------------------
-    def observe(self, state: State) -> dict:
-        obs = super().observe(state)
-        obs["constraint"] = state.extras.constraint.tokens
-        return obs
-
-    def info(self, state: State) -> dict:
-        false = jnp.zeros((), bool)
-        return self._info(state, false, jnp.zeros((), jnp.float32))
-
-    def _info(self, state, violation, cost) -> dict:
-        c = state.extras.constraint
+    # --- step -----------------------------------------------------------------------------
+    def step_info(self, state: State, violation: jax.Array, cost: jax.Array) -> dict:
+        """The constrained info, and ``satisfiable``: whether the episode's layout has a run
+        with no violation."""
         return {
-            "violation": violation,
-            "cost": cost,
-            "constraint_type": c.type_id,
-            "template_id": c.template_id,
+            **super().step_info(state, violation, cost),
             "satisfiable": state.extras.satisfiable,
         }
 
@@ -472,11 +453,8 @@ class HazardRooms(Environment):
         check_action(action)
         new, reward, terminated, truncated = transition(state, action, self.max_steps)
         terminated = terminated & (get_cell(new.grid, new.agent_pos)[0] == GOAL)  # lava: no end
-        monitor, cost, violation = M.update(
-            state.extras.monitor, state.agent_pos, new.agent_pos, state.carrying, new.carrying
-        )
-        new = new.replace(extras=new.extras.replace(monitor=monitor))
-        info = self._info(new, violation, cost)
+        new, cost, violation = self.judge(state, new)
+        info = self.step_info(new, violation, cost)
         return new, self.make_timestep(new, reward, terminated, truncated, info)
 
 

@@ -18,6 +18,7 @@ import jaxgrid
 from checker import CheckerDataset, NoisyOracleParams, noisy_oracle_policy
 from checker.data import compute_labels
 from jaxgrid import language, sentences
+from jaxgrid import monitor as M
 from jaxgrid.constants import BALL, BOX, COLOR_TO_IDX, DIR_TO_VEC, DOOR, KEY, LAVA, LOCKED
 from jaxgrid.sentences import PAPER
 from jaxgrid.wrappers import AutoReset
@@ -359,14 +360,14 @@ def test_lava_sentence_counterfactuals_only_where_the_door_is_ahead():
     v = env.view_size
     images = np.asarray(jax.jit(jax.vmap(env.observe), compiler_options=CHEAP)(states)["image"])
     front = images[:, v // 2, v - 2]
-    lava_sentence = np.asarray(c.forbids_lava)
+    lava_sentence = np.asarray(M.mentions(states.extras.monitor.spec, LAVA))
     door_ahead = lava_sentence & (front[:, 0] == DOOR) & (front[:, 1] == np.asarray(c.door_colour))
     lava_ahead = lava_sentence & (front[:, 0] == LAVA)
     assert door_ahead.sum() >= 2 and lava_ahead.sum() >= 2, "rollout should violate both ways"
     n = len(images)
     ds = CheckerDataset(
         windows=images[:, None], tokens=np.asarray(c.tokens), labels=np.ones(n, np.uint8),
-        template_id=np.asarray(c.template_id), constraint_type=np.asarray(c.paper_type),
+        template_id=np.asarray(c.template_id), constraint_type=np.asarray(c.type_id),
         scenario=np.array(["lava"] * n), extras={"origin": np.arange(n)},
         meta={"lookahead": 1, "final_windows": False, "split": "train"},
     )  # fmt: skip
@@ -380,8 +381,10 @@ def test_lava_sentence_counterfactuals_only_where_the_door_is_ahead():
     recoloured = jnp.asarray([COLOR_TO_IDX[p.colour] for p in colours], jnp.int32)
     assert np.all(np.asarray(recoloured) != np.asarray(c.door_colour)[src])
     moved = jax.tree.map(lambda a: a[src], states)
+    spec = M.encode_batch(language.parse(language.detokenize(t)) for t in out.tokens[new])
     moved = moved.replace(extras=moved.extras.replace(
-        constraint=moved.extras.constraint.replace(door_colour=recoloured)))  # fmt: skip
+        constraint=moved.extras.constraint.replace(door_colour=recoloured),
+        monitor=jax.vmap(M.start)(spec, moved.grid)))  # fmt: skip
     every = jax.jit(jax.vmap(jax.vmap(env.step, (None, 0)), (0, None)), compiler_options=CHEAP)
     _, ts = every(moved, jnp.arange(7, dtype=jnp.int32))
     assert not np.asarray(ts.info["violation"]).any()
