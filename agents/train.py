@@ -43,7 +43,7 @@ from agents.networks import (
 from agents.rollout import EnvCarry, Transition
 from agents.shield import make_shield, mask_logits
 from jaxgrid import language
-from jaxgrid.constrained import language_table, sentence_tokens
+from jaxgrid.constrained import ConstrainedEnvironment, language_table, sentence_tokens
 from jaxgrid.sentences import PAPER
 from jaxgrid.wrappers import BatchedAutoReset
 
@@ -421,7 +421,7 @@ class Learner(struct.PyTreeNode):
 def make_learner(config: PPOConfig, checker=None) -> Learner:
     """Validate ``config`` (and ``checker``) and build the run's :class:`Learner`."""
     env = config.make_env()
-    if not getattr(env, "every_sentence_in_table", True):
+    if isinstance(env, ConstrainedEnvironment) and not env.every_sentence_in_table:
         raise ValueError(
             f"{config.env_id}: the learner encodes the env's table of sentences once per "
             "minibatch, and this env also says sentences outside it (conjunctions drawn at "
@@ -459,7 +459,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
         optimizer=optimizer,
         checker=checker,
         shield=shield,
-        has_language=hasattr(env, "constraint_table"),
+        has_language=isinstance(env, ConstrainedEnvironment),
         table=jnp.asarray(table),
         words=max(1, int((table != language.VOCAB.index(language.PAD)).sum(1).max())),
     )

@@ -1,14 +1,28 @@
-"""The shared base of the constrained environments: their state, observation and info.
+"""The one declared interface of a constrained environment, and its shared implementation.
 
 Every environment whose episodes carry a constraint (the paper's scenarios, HazardRooms)
-derives from :class:`ConstrainedEnvironment`: ``state.extras`` is a :class:`ConstrainedExtras`
-(the episode's :class:`EpisodeConstraint` and its :class:`~jaxgrid.monitor.Monitor`), the
-observation adds the constraint's token ids, and ``info`` reports the step's ``violation`` and
-``cost``, judged by the monitor alone (:meth:`ConstrainedEnvironment.judge`), with the
-constraint's ``constraint_type`` and ``template_id``.
+derives from :class:`ConstrainedEnvironment`; code outside it (adapters, learners, checkers)
+tests ``isinstance(env, ConstrainedEnvironment)`` and reads only what it declares:
+
+* :attr:`~ConstrainedEnvironment.language_table`: the :class:`~jaxgrid.sentences.SentenceTable`
+  of ``observation["constraint"]`` (the token layout its models read);
+* :meth:`~ConstrainedEnvironment.constraint_table`: numeric arrays of the rows its episodes
+  draw from (``tokens`` ``(K, max_len)``, and ``spec``, each row's monitor encoding), and
+  :attr:`~ConstrainedEnvironment.every_sentence_in_table`: whether every sentence an episode
+  can say is one of those rows;
+* the state: ``state.extras`` is a :class:`ConstrainedExtras`, the episode's
+  :class:`EpisodeConstraint` and its :class:`~jaxgrid.monitor.Monitor`, the one judge of
+  ``violation`` and ``cost`` (:meth:`~ConstrainedEnvironment.judge`);
+* the keys it observes and reports: :attr:`~ConstrainedEnvironment.OBSERVATION_KEYS` and
+  :attr:`~ConstrainedEnvironment.INFO_KEYS`, at reset and at every step.
+
+:func:`language_table` and :func:`sentence_tokens` answer for any environment, with the paper's
+token layout for one without a constraint (models built for it keep their sizes).
 """
 
 from __future__ import annotations
+
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -59,10 +73,28 @@ class ConstrainedExtras:
 class ConstrainedEnvironment(Environment):
     """Base of every environment with a constraint per episode (see the module docstring).
 
-    Subclasses implement :meth:`generate` (whose state's extras are a
-    :class:`ConstrainedExtras`), and in ``step`` call :meth:`judge` between the transition and
-    anything that moves the agent on.
+    Subclasses set :attr:`language_table`, implement :meth:`constraint_table` and
+    :meth:`generate` (whose state's extras are a :class:`ConstrainedExtras`), and in ``step``
+    call :meth:`judge` between the transition and anything that moves the agent on.
     """
+
+    #: Observation keys: MiniGrid's, and the constraint's token ids.
+    OBSERVATION_KEYS: ClassVar[tuple[str, ...]] = ("image", "direction", "constraint")
+    #: Info keys of every step, reset included.
+    INFO_KEYS: ClassVar[tuple[str, ...]] = ("violation", "cost", "constraint_type", "template_id")
+    #: The table of ``observation["constraint"]``.
+    language_table: ClassVar[SentenceTable]
+
+    def constraint_table(self) -> dict:
+        """Numeric arrays of the rows episodes draw from, row k = sentence k: at least
+        ``tokens`` int32 ``(K, language_table.max_len)`` and ``spec``, a
+        :class:`~jaxgrid.monitor.ClauseSpec` of ``(K, NUM_CLAUSES)`` arrays."""
+        raise NotImplementedError
+
+    @property
+    def every_sentence_in_table(self) -> bool:
+        """Whether :meth:`constraint_table` lists every sentence an episode can say."""
+        return True
 
     def observe(self, state: State) -> dict:
         obs = super().observe(state)
@@ -73,7 +105,7 @@ class ConstrainedEnvironment(Environment):
         return self.step_info(state, jnp.zeros((), bool), jnp.zeros((), jnp.float32))
 
     def step_info(self, state: State, violation: jax.Array, cost: jax.Array) -> dict:
-        """The info of a step that ended in ``state``."""
+        """The :attr:`INFO_KEYS` of a step that ended in ``state``."""
         c = state.extras.constraint
         return {
             "violation": violation,
@@ -95,13 +127,13 @@ class ConstrainedEnvironment(Environment):
 def language_table(env) -> SentenceTable:
     """The table whose token ids ``env`` observes; the paper's for an env without one, so
     that a model built for it keeps the paper's embedding size."""
-    return getattr(env, "language_table", PAPER)
+    return env.language_table if isinstance(env, ConstrainedEnvironment) else PAPER
 
 
 def sentence_tokens(env) -> np.ndarray:
     """int32 ``(K, max_len)`` token ids of every sentence of ``env``'s constraint table (the
     rows it draws from), or one pad row for an env without one, so that code indexing the
     table works unchanged."""
-    if not hasattr(env, "constraint_table"):
-        return np.full((1, language_table(env).max_len), VOCAB.index(PAD), np.int32)
+    if not isinstance(env, ConstrainedEnvironment):
+        return np.full((1, PAPER.max_len), VOCAB.index(PAD), np.int32)
     return np.asarray(env.constraint_table()["tokens"], np.int32)

@@ -215,7 +215,8 @@ class HazardRooms(ConstrainedEnvironment):
     distances: tuple = struct.field(pytree_node=False, default=(2, 3))
     sentences: tuple | None = struct.field(pytree_node=False, default=None)
 
-    language_table = HAZARD_ROOMS  # the table of ``obs["constraint"]``
+    language_table = HAZARD_ROOMS
+    INFO_KEYS = ConstrainedEnvironment.INFO_KEYS + ("satisfiable",)
 
     def __post_init__(self):
         super().__post_init__()

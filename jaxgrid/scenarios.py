@@ -114,7 +114,7 @@ class Scenario(ConstrainedEnvironment):
     absent_colour_prob: float = 0.2
     has_lava: bool = struct.field(pytree_node=False, default=False)
 
-    language_table = sentences.PAPER  # the table of ``obs["constraint"]``
+    language_table = sentences.PAPER
 
     def __post_init__(self):
         super().__post_init__()
