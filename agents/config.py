@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 import jaxgrid
-from jaxgrid import language
+from jaxgrid.constrained import language_table
 
 # In display order: the paper's method first, then its baselines, then the shields (tables
 # and figures use it).
@@ -283,7 +283,7 @@ def check_checker(config: PPOConfig, checker, env) -> None:
         raise ValueError(
             f"checker view_size {checker.config.view_size} != env view_size {env.view_size}"
         )
-    words = getattr(env, "language", language).vocab_size()
+    words = language_table(env).vocab_size
     if checker is not None and checker.config.vocab_size != words:
         raise ValueError(
             f"the checker reads a vocabulary of {checker.config.vocab_size} token ids and "

@@ -28,8 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from checker.model import encode_sentence
-from jaxgrid import language
 from jaxgrid.constants import COLOR_NAMES, OBJECT_NAMES, STATE_NAMES
+from jaxgrid.sentences import PAPER
 
 _SIZES = (len(OBJECT_NAMES), len(COLOR_NAMES), len(STATE_NAMES))
 
@@ -116,7 +116,7 @@ def _conv_taps(h: int, w: int, k: int) -> np.ndarray:
 class SentenceEncoder(nn.Module):
     """Embed(word_dim) -> GRU(gru_dim); returns the hidden state after the last real token."""
 
-    vocab_size: int = language.vocab_size()
+    vocab_size: int = PAPER.vocab_size
     word_dim: int = 32
     gru_dim: int = 128
 
@@ -157,7 +157,7 @@ class ActorCritic(nn.Module):
     hidden: int = 64
     word_dim: int = 32
     gru_dim: int = 128
-    vocab_size: int = language.vocab_size()
+    vocab_size: int = PAPER.vocab_size
     recurrent: bool = False  # a GRU memory between the observation and the heads
     # the sentence also scales each cell's one-hot object, colour and state codes
     film_codes: bool = False

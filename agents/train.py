@@ -44,6 +44,8 @@ from agents.rollout import EnvCarry, Transition
 from agents.shield import make_shield, mask_logits
 from checker.protocol import CheckerProtocol
 from jaxgrid import language
+from jaxgrid.constrained import ConstrainedEnvironment, language_table, sentence_tokens
+from jaxgrid.sentences import PAPER
 from jaxgrid.wrappers import BatchedAutoReset
 
 
@@ -80,7 +82,7 @@ class Learner(struct.PyTreeNode):
     table: jax.Array = None  # int32 (K, L): the env's sentence table
     # Real tokens of the table's longest sentence. The sentence encoders run this many steps:
     # on the pad tail a GRU's carry is never read (same features and gradients, fewer steps).
-    words: int = struct.field(pytree_node=False, default=language.MAX_LEN)
+    words: int = struct.field(pytree_node=False, default=PAPER.max_len)
 
     # -- pieces -------------------------------------------------------------------------
     @property
@@ -420,7 +422,7 @@ class Learner(struct.PyTreeNode):
 def make_learner(config: PPOConfig, checker=None) -> Learner:
     """Validate ``config`` (and ``checker``) and build the run's :class:`Learner`."""
     env = config.make_env()
-    if not getattr(env, "every_sentence_in_table", True):
+    if isinstance(env, ConstrainedEnvironment) and not env.every_sentence_in_table:
         raise ValueError(
             f"{config.env_id}: the learner encodes the env's table of sentences once per "
             "minibatch, and this env also says sentences outside it (conjunctions drawn at "
@@ -432,7 +434,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
     shield = None
     if config.shield_judge is not None:
         shield = make_shield(env, config.shield_judge, checker, config.checker_threshold)
-    table = language.sentence_table(env)
+    table = sentence_tokens(env)
 
     def schedule(count):
         per_update = config.update_epochs * config.num_minibatches
@@ -450,7 +452,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
             num_actions=env.num_actions,
             conv_channels=config.conv_channels,
             cell_dim=config.cell_dim,
-            vocab_size=getattr(env, "language", language).vocab_size(),
+            vocab_size=language_table(env).vocab_size,
             recurrent=config.recurrent,
             film_codes=config.film_codes,
             memory_skip=config.memory_skip,
@@ -458,7 +460,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
         optimizer=optimizer,
         checker=checker,
         shield=shield,
-        has_language=hasattr(env, "constraint_table"),
+        has_language=isinstance(env, ConstrainedEnvironment),
         table=jnp.asarray(table),
         words=max(1, int((table != language.VOCAB.index(language.PAD)).sum(1).max())),
     )

@@ -32,15 +32,14 @@ import numpy as np
 from agents.timing import measure
 from benchmarks.cli import integer
 from checker.cli import run_main
-from jaxgrid import hazard_language as HL
-from jaxgrid import make
+from jaxgrid import language, make
 from jaxgrid import monitor as M
 from jaxgrid.constants import DOOR
 from jaxgrid.io import write_json
 from jaxgrid.oracle import rollout_oracle
 from jaxgrid.wrappers import BatchedAutoReset
 
-TYPES = HL.CONSTRAINT_TYPES
+TYPES = language.CONSTRAINT_TYPES
 
 
 def oracle_figures(env, episodes: int, batch: int = 2_000, seed: int = 0) -> dict:

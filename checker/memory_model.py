@@ -33,7 +33,7 @@ import jax.numpy as jnp
 
 from checker.model import NUM_COLOURS, NUM_OBJECTS, NUM_STATES, embed_cells, encode_sentence
 from checker.protocol import LABEL_LOOKAHEADS, MOVES, NO_ACTION
-from jaxgrid import hazard_language as HL
+from jaxgrid.sentences import HAZARD_ROOMS
 
 _FLAGS = ("memory", "actions")  # MemoryCheckerConfig's bool fields
 
@@ -43,8 +43,8 @@ class MemoryCheckerConfig:
     """Sizes of :class:`MemoryChecker` (every field a positive int)."""
 
     view_size: int = 7
-    max_len: int = HL.MAX_LEN
-    vocab_size: int = HL.vocab_size()
+    max_len: int = HAZARD_ROOMS.max_len
+    vocab_size: int = HAZARD_ROOMS.vocab_size
     word_dim: int = 32
     gru_dim: int = 64  # sentence code
     cell_dim: int = 16
@@ -186,7 +186,7 @@ class TrainedMemoryChecker(struct.PyTreeNode):
     lookahead: int = struct.field(pytree_node=False, default=1)
     kind = "memory"
     reads = "stream"  # whole streams of frames, starts, sentences (and actions)
-    language = HL  # the sentences its token ids spell
+    sentences = HAZARD_ROOMS  # the sentence table its token ids spell
 
     @property
     def shield_actions(self) -> tuple[int, ...] | None:

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from checker.memory_model import MemoryChecker, MemoryCheckerConfig, stream_input_names
-from jaxgrid import hazard_language as HL
+from jaxgrid import language
 
 __all__ = [
     "auroc",
@@ -243,17 +243,17 @@ def colour_counterfactual(trained, dataset, threshold: float | None = None, seed
     ``flip_rate`` (fraction of detected positives that fall below the threshold once
     recoloured), and the mean probabilities of both; ``None`` entries if there is no such row.
     """
-    from jaxgrid import language
+    from jaxgrid import language, sentences
 
     thr = trained.threshold if threshold is None else float(threshold)
-    lava_free = np.array([not t.has_lava for t in language.TEMPLATES])
+    lava_free = np.array([not t.has_lava for t in sentences.TEMPLATES])
     tid = np.asarray(dataset.template_id)
     rows = np.flatnonzero((np.asarray(dataset.labels) > 0) & lava_free[np.clip(tid, 0, None)])
     if len(rows) == 0:
         return {"n": 0, "auroc": None, "flip_rate": None, "mean_prob": None,
                 "mean_prob_counterfactual": None}  # fmt: skip
     tokens = np.array(dataset.tokens[rows])
-    colour_ids = np.array([language.VOCAB.index(c) for c in language.DOOR_COLOURS])
+    colour_ids = np.array([language.VOCAB.index(c) for c in sentences.DOOR_COLOURS])
     rng = np.random.default_rng(seed)
     is_colour = np.isin(tokens, np.array([language.VOCAB.index(c) for c in language.COLOURS]))
     for r in range(len(rows)):
@@ -342,11 +342,11 @@ def evaluate_streams(probs, data: dict, late: int = 10, lookahead: int = 1) -> d
     y, valid = data["label"] > 0, data["valid"]
     report = {"auroc": auroc(y[valid], probs[valid]), "positives": int(y[valid].sum())}
     per_type = {}
-    for i, name in enumerate(HL.CONSTRAINT_TYPES):
+    for i, name in enumerate(language.CONSTRAINT_TYPES):
         m = valid & (data["ctype"] == i)
         per_type[name] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
     report["per_type"] = per_type
-    budget = data["ctype"] == HL.CONSTRAINT_TYPES.index("budget")
+    budget = data["ctype"] == language.CONSTRAINT_TYPES.index("budget")
     m = valid & budget & late_violation_mask(data, late, lookahead)
     report["late_budget"] = {"late": late, "auroc": auroc(y[m], probs[m]),
                              "positives": int(y[m].sum())}  # fmt: skip

@@ -49,6 +49,7 @@ from flax import struct
 
 from jaxgrid import language
 from jaxgrid.constants import COLOR_NAMES, OBJECT_NAMES, STATE_NAMES
+from jaxgrid.sentences import PAPER
 
 NUM_OBJECTS = len(OBJECT_NAMES)  # 11
 NUM_COLOURS = len(COLOR_NAMES)  # 6
@@ -62,8 +63,8 @@ class CheckerConfig:
     Attributes:
         window: number ``n`` of observations per window.
         view_size: side ``V`` of the egocentric view.
-        max_len: token ids per constraint (``jaxgrid.language.MAX_LEN``).
-        vocab_size: number of token ids (``jaxgrid.language.vocab_size()``).
+        max_len: token ids per constraint (``jaxgrid.sentences.PAPER.max_len``).
+        vocab_size: number of token ids (``jaxgrid.sentences.PAPER.vocab_size``).
         word_dim: word embedding size (paper: 32).
         gru_dim: GRU state size, the sentence code (paper: 128).
         state_dim: per-state embedding size (paper: 64).
@@ -77,8 +78,8 @@ class CheckerConfig:
 
     window: int = 5
     view_size: int = 5
-    max_len: int = language.MAX_LEN
-    vocab_size: int = language.vocab_size()
+    max_len: int = PAPER.max_len
+    vocab_size: int = PAPER.vocab_size
     word_dim: int = 32
     gru_dim: int = 128
     state_dim: int = 64
@@ -256,7 +257,7 @@ class TrainedChecker(struct.PyTreeNode):
     threshold: float = struct.field(pytree_node=False, default=0.5)
     kind = "window"  # what it remembers: the last frames (checker.memory_model's: "memory")
     reads = "window"  # windows of the last frames with their sentence
-    language = language  # the sentences its token ids spell
+    sentences = PAPER  # the sentence table its token ids spell
     # A shield asks it about every action (None): from lookahead 1 on, a turn can lead to a
     # state from which a violation is expected; its shield results were measured so.
     shield_actions = None

@@ -22,12 +22,12 @@ or ``"into"`` (:data:`LABEL_LOOKAHEADS`), which is read as the lookahead it mean
 
 from __future__ import annotations
 
-from types import ModuleType
 from typing import Any, ClassVar, Protocol
 
 import jax
 
 from jaxgrid.constants import FORWARD
+from jaxgrid.sentences import SentenceTable
 
 #: The checker kinds, by the name a saved checker's record gives.
 KINDS = ("window", "memory")
@@ -48,15 +48,15 @@ class CheckerProtocol(Protocol):
     streams of frames, episode starts, sentences and actions,
     :func:`checker.data.collect_streams`). ``shield_actions`` are the actions whose candidate
     next frames a shield must score (``None``: all of them): a checker of the step into each
-    frame can only alarm on a step that enters a cell (:data:`MOVES`). ``language`` is the
-    module of the sentences its token ids spell (:mod:`jaxgrid.language` or its hazard
-    extension), ``config`` its sizes (``view_size``, ``vocab_size`` and ``max_len`` among
-    them).
+    frame can only alarm on a step that enters a cell (:data:`MOVES`). ``sentences`` is the
+    sentence table whose token ids it reads (:class:`jaxgrid.sentences.SentenceTable`: the
+    paper's or HazardRooms'), ``config`` its sizes (``view_size``, ``vocab_size`` and
+    ``max_len`` among them).
     """
 
     kind: ClassVar[str]
     reads: ClassVar[str]
-    language: ClassVar[ModuleType]
+    sentences: ClassVar[SentenceTable]
     params: Any
     config: Any
     lookahead: int

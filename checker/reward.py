@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxgrid import language
+from jaxgrid.sentences import PAPER
 
 
 def init_buffer(num_envs: int, window: int, view_size: int) -> jax.Array:
@@ -52,7 +53,7 @@ def push(buffer: jax.Array, image: jax.Array, episode_start: jax.Array) -> jax.A
 def sentence_codes(checker, tokens: jax.Array) -> jax.Array:
     """``checker.encode_language(tokens)``, computed cheaply for large batches.
 
-    With more rows than the grammar has sentences (:func:`jaxgrid.language.sentence_table`,
+    With more rows than the grammar has sentences (:data:`jaxgrid.sentences.PAPER`,
     210), the GRU encodes that table and each row takes its sentence's code by exact match of
     its token ids. The table's encoding
     depends on the parameters only, so inside a PPO ``lax.scan`` XLA hoists it out of the
@@ -62,7 +63,7 @@ def sentence_codes(checker, tokens: jax.Array) -> jax.Array:
     probability, rather than a silently wrong one. Smaller batches are encoded directly.
     """
     tokens = jnp.asarray(tokens, jnp.int32)
-    table = language.sentence_table()
+    table = PAPER.tokens()
     if tokens.ndim != 2 or tokens.shape[0] <= table.shape[0] or tokens.shape[1] != table.shape[1]:
         return checker.encode_language(tokens)
     table = jnp.asarray(table)

@@ -28,9 +28,9 @@ from flax import serialization
 
 from checker.memory_model import TrainedMemoryChecker
 from checker.model import TrainedChecker
-from jaxgrid import language
 from jaxgrid.io import atomic_write, read_json, write_json
 from jaxgrid.rundir import LOCK_FILE, sha256_bytes, writing
+from jaxgrid.sentences import PAPER, SentenceTable
 
 PARAMS_FILE = "params.msgpack"
 CONFIG_FILE = "config.json"
@@ -45,9 +45,7 @@ KINDS = {cls.kind: cls for cls in (TrainedChecker, TrainedMemoryChecker)}
 def save(trained, directory: str | os.PathLike) -> str:
     """Write ``trained`` (a checker of any kind of :data:`KINDS`) as ``params.msgpack`` and
     ``config.json`` under ``directory`` (created if needed); :func:`load` reads it back."""
-    lang = trained.language
-    meta = {"kind": trained.kind, **trained.record(), "vocab": list(lang.VOCAB),
-            "max_len": lang.MAX_LEN}  # fmt: skip
+    meta = {"kind": trained.kind, **trained.record(), **vocab_meta(trained.sentences)}
     return write_params(trained.params, directory, meta)
 
 
@@ -62,7 +60,7 @@ def load(directory: str | os.PathLike):
     """
     meta = read_meta(directory)
     cls = KINDS[_kind(meta, directory)]
-    check_vocab(meta, f"checker {os.fspath(directory)}", cls.language)
+    check_vocab(meta, f"checker {os.fspath(directory)}", cls.sentences)
     return cls.from_record(meta, lambda template: read_params(directory, template, meta))
 
 
@@ -85,19 +83,24 @@ def _kind(meta: dict, directory) -> str:
     return kind
 
 
-def check_vocab(meta: dict, where: str, lang=language) -> None:
-    """Raise ``ValueError`` if ``meta`` (with ``vocab``/``max_len``) is not the vocabulary of
-    ``lang`` (a language module: :mod:`jaxgrid.language` or :mod:`jaxgrid.hazard_language`)."""
+def vocab_meta(table: SentenceTable = PAPER) -> dict:
+    """The token layout of ``table`` that a saved checker records (:func:`check_vocab`)."""
+    return {"vocab": list(table.vocab), "max_len": table.max_len}
+
+
+def check_vocab(meta: dict, where: str, table: SentenceTable = PAPER) -> None:
+    """Raise ``ValueError`` if ``meta`` (with ``vocab``/``max_len``) is not the token layout of
+    ``table`` (a :class:`jaxgrid.sentences.SentenceTable`: the paper's, HazardRooms')."""
     vocab, max_len = meta.get("vocab"), meta.get("max_len")
     if not isinstance(vocab, list):
         raise ValueError(f"{where}: its {CONFIG_FILE} records no constraint vocabulary (not a "
                          "checker's, or damaged), so its token ids cannot be checked")  # fmt: skip
-    if vocab != list(lang.VOCAB) or max_len != lang.MAX_LEN:
+    if vocab != list(table.vocab) or max_len != table.max_len:
         raise ValueError(
             f"{where} was made for another constraint vocabulary ({len(vocab)} words, MAX_LEN "
             f"{max_len}); "
-            f"this {lang.__name__} has {lang.vocab_size()} words and MAX_LEN "
-            f"{lang.MAX_LEN}, so its token ids would mean other words"
+            f"the {table.name} sentence table has {table.vocab_size} words and MAX_LEN "
+            f"{table.max_len}, so its token ids would mean other words"
         )
 
 

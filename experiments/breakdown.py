@@ -33,7 +33,7 @@ from agents.runner import load_agents
 from checker import cli
 from checker.store import check_writable_file, params_sha256
 from experiments.memory_phase import SHIELD_CHECKER
-from jaxgrid import hazard_language, language
+from jaxgrid import language
 from jaxgrid.constants import DOOR, EMPTY, WALL
 from jaxgrid.io import read_json, write_json
 
@@ -83,7 +83,7 @@ def checker_of(cfg: BreakdownConfig):
 def groups(constraints: np.ndarray, template_ids: np.ndarray) -> dict[str, np.ndarray]:
     """Boolean episode masks per ``template <id>: <an example sentence>`` and per
     ``colour <names>`` (the colour words the sentence names, ``none`` if it names none)."""
-    sentences = [hazard_language.detokenize(c) for c in constraints]
+    sentences = [language.detokenize(c) for c in constraints]
     out = {}
     for t in np.unique(template_ids):
         example = sentences[int(np.flatnonzero(template_ids == t)[0])]

@@ -3,7 +3,7 @@
 Run ``python -m experiments.hazard_rooms [--quick | --paper] [--out DIR]``.
 
 The agents' episodes draw one of :data:`SENTENCES`, one or two of each constraint type of
-:mod:`jaxgrid.hazard_language` (the learner encodes a fixed table of sentences). The checker
+:mod:`jaxgrid.language` (the learner encodes a fixed table of sentences). The checker
 is the memory checker (:mod:`checker.memory_model`, phases in :mod:`experiments.memory_phase`),
 and the policy is recurrent (``PPOConfig(recurrent=True)``), so that both can count. The
 episodic novelty bonus is 0.05 instead of the paper scenarios' 0.01: behind two closed doors

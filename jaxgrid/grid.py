@@ -39,6 +39,19 @@ def randint(u: jax.Array, low, high) -> jax.Array:
     return low + jnp.minimum(jnp.floor(u * n).astype(jnp.int32), n - 1)
 
 
+def distinct(u: jax.Array, values, n: int) -> jax.Array:
+    """``n`` distinct entries of ``values``, uniformly, from uniforms ``u`` (at least ``n``):
+    a partial Fisher-Yates shuffle, ``n`` static (a few draws: the loop unrolls)."""
+    pool = jnp.asarray(values)
+    out = []
+    for i in range(n):
+        k = randint(u[i], i, len(values))
+        pi, pk = pool[i], pool[k]
+        pool = pool.at[i].set(pk).at[k].set(pi)
+        out.append(pool[i])
+    return jnp.stack(out)
+
+
 def select(index, table) -> jax.Array:
     """``table[index]`` along the first axis as a select-sum: no gather under ``vmap``, where
     a gather with a traced index is slow on CPU and the tables are a few rows."""

@@ -30,7 +30,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from jaxgrid import language
+from jaxgrid.constrained import language_table
 from jaxgrid.registry import make, registered_ids
 from jaxgrid.render import render, render_ansi
 from jaxgrid.wrappers import BatchedAutoReset
@@ -47,8 +47,8 @@ def observation_space(env) -> spaces.Dict:
 
     ``image``: Box uint8 ``(V, V, 3)`` in ``[0, 255]`` (MiniGrid's encoding, indexed ``[x, y]``),
     ``direction``: Discrete(4), and for scenarios ``constraint``: Box int32 ``(MAX_LEN,)`` of
-    token ids in ``[0, vocab_size)`` of the env's ``language`` (:mod:`jaxgrid.language` unless
-    the env names another, as HazardRooms names :mod:`jaxgrid.hazard_language`).
+    token ids in ``[0, vocab_size)`` of the env's sentence table
+    (:func:`jaxgrid.constrained.language_table`).
     """
     v = env.view_size
     obs = {
@@ -57,8 +57,8 @@ def observation_space(env) -> spaces.Dict:
     }
     probe = jax.eval_shape(lambda k: env.reset(k)[1].observation, jax.random.PRNGKey(0))
     if "constraint" in probe:
-        lang = getattr(env, "language", language)
-        obs["constraint"] = spaces.Box(0, lang.vocab_size() - 1, (lang.MAX_LEN,), np.int32)
+        table = language_table(env)
+        obs["constraint"] = spaces.Box(0, table.vocab_size - 1, (table.max_len,), np.int32)
     return spaces.Dict(obs)
 
 

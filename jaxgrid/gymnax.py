@@ -65,8 +65,8 @@ try:
 except ImportError as err:  # gymnax is an optional extra; name the command that installs it
     raise ImportError(f'jaxgrid.gymnax needs gymnax: pip install -e ".[gymnax]" ({err})') from err
 
-from jaxgrid import language
 from jaxgrid.constants import COLOR_NAMES, OBJECT_NAMES, STATE_NAMES
+from jaxgrid.constrained import language_table
 from jaxgrid.environment import Environment
 from jaxgrid.registry import make as make_jaxgrid
 from jaxgrid.types import State
@@ -199,8 +199,8 @@ class GymnaxEnv(environment.Environment):
         self.jax_env = env
         self.observation = observation
         self._name = type(env).__name__ if name is None else name
-        # The scenarios name their language (HazardRooms its own); others have no tokens.
-        self.language = getattr(env, "language", language)
+        # The sentence table of its tokens (the paper's, HazardRooms' own); others have none.
+        self.language_table = language_table(env)
 
     # --- gymnax API -----------------------------------------------------------------------
     @property
@@ -272,7 +272,7 @@ class GymnaxEnv(environment.Environment):
     def _encode(self, obs: dict):
         if self.observation == "dict":
             return Observation(obs)
-        return flatten_observation(obs, self.language.vocab_size())
+        return flatten_observation(obs, self.language_table.vocab_size)
 
     @functools.cached_property
     def _spaces(self) -> dict:
@@ -287,7 +287,7 @@ class GymnaxEnv(environment.Environment):
         }
         size = v * v * sum(CHANNELS) + NUM_DIRECTIONS
         if "constraint" in probe:
-            n, vocab = self.language.MAX_LEN, self.language.vocab_size()
+            n, vocab = self.language_table.max_len, self.language_table.vocab_size
             obs["constraint"] = spaces.Box(0, vocab - 1, (n,), jnp.int32)
             size += n * vocab
         return {"flat": spaces.Box(0.0, 1.0, (size,), jnp.float32), "dict": spaces.Dict(obs)}

@@ -9,9 +9,10 @@ scattered over the rooms, never on the cells in front of a door, the agent, the 
 key. Lava costs instead of killing: the
 agent walks on it as on floor, and only the constraint makes it a hazard.
 
-Each episode draws a constraint of :mod:`jaxgrid.hazard_language`: its type uniformly among
-avoid, budget, sequential, proximity and conjunction, then a sentence uniformly among the
-table rows of that type (a conjunction joins two clauses of uniform types with "and"). The
+Each episode draws a constraint of :mod:`jaxgrid.language`: its type uniformly among avoid,
+budget, sequential, proximity and conjunction, then a sentence uniformly among the rows of
+that type of its table (:data:`jaxgrid.sentences.HAZARD_ROOMS`; a conjunction joins two
+clauses of uniform types with "and"). The
 layout is then drawn until the goal can be reached without entering any clause's forbidden
 zone (every budget, trigger and order ignored: a sufficient condition for a run with no
 violation) and every trigger cell the constraint names exists; after
@@ -25,7 +26,7 @@ budget or sequential clause names first, and the trigger of an "after" clause, w
 enter lava or a floor, lies on both doorsteps out of the agent's room: a route that skirts its
 trigger never arms the clause. The monitor (:mod:`jaxgrid.monitor`) lives in the
 state; ``info`` reports ``violation``, ``cost``, ``constraint_type`` (index into
-:data:`jaxgrid.hazard_language.CONSTRAINT_TYPES`), ``template_id`` (the first clause's) and
+:data:`jaxgrid.language.CONSTRAINT_TYPES`), ``template_id`` (the first clause's) and
 ``satisfiable``.
 
 ``sentences`` replaces the drawn constraints with a fixed list (each episode draws one of
@@ -45,11 +46,12 @@ import numpy as np
 from flax import struct
 
 from jaxgrid import grid as G
-from jaxgrid import hazard_language as HL
+from jaxgrid import language
 from jaxgrid import monitor as M
 from jaxgrid.constants import (
     BLUE,
     CLOSED,
+    COLOR_TO_IDX,
     DOOR,
     EMPTY_CELL,
     FLOOR,
@@ -62,10 +64,18 @@ from jaxgrid.constants import (
     WALL_CELL,
     YELLOW,
 )
+from jaxgrid.constrained import ConstrainedEnvironment, ConstrainedExtras, EpisodeConstraint
 from jaxgrid.dynamics import get_cell, transition
-from jaxgrid.environment import Environment, check_action
+from jaxgrid.environment import check_action
 from jaxgrid.oracle import distance_field, passable_cells
-from jaxgrid.scenarios import DOOR_COLOURS, SPLITS, _distinct_colours
+from jaxgrid.paraphrases import SPLITS
+from jaxgrid.scenarios import DOOR_COLOURS
+from jaxgrid.sentences import (
+    HAZARD_ROOMS,
+    HAZARD_ROOMS_FLOORS,
+    HAZARD_ROOMS_TARGETS,
+    hazard_rooms_rows,
+)
 from jaxgrid.types import State, TimeStep
 
 #: Layout draws per episode before the last one is kept whatever it is.
@@ -80,8 +90,8 @@ CHECK_LAYOUTS = 256
 MIN_SATISFIABLE_SHARE = 0.05
 #: Chance that a strip is of the ground hazard that a budget or sequential clause names first.
 NAMED_SHARE = 0.75
-#: Colours of the floor tiles: water, grass and yellow floor.
-FLOOR_COLOURS = (BLUE, GREEN, YELLOW)
+#: Colours of the floor tiles (MiniGrid indices): water, grass and yellow floor.
+FLOOR_COLOURS = tuple(COLOR_TO_IDX[c] for c in HAZARD_ROOMS_FLOORS)
 #: (kind, colour) of each hazard strip, in drawing order (later strips paint over earlier).
 STRIPS = (
     (LAVA, 0), (LAVA, 0), (LAVA, 0), (FLOOR, BLUE), (FLOOR, BLUE),
@@ -90,31 +100,16 @@ STRIPS = (
 _STRIP_LEN = 3
 # The two rooms each door joins: doors 0 and 1 in the vertical wall, 2 and 3 in the horizontal.
 _DOOR_ROOMS = ((0, 1), (2, 3), (0, 2), (1, 3))
-_COLOUR_NAMES = ("red", "green", "blue", "purple", "yellow", "grey")
 
 
-def scenario_targets() -> tuple[HL.Target, ...]:
-    """Targets the tables use: lava, the three floors, then the five door colours."""
-    floors = tuple(HL.Target("floor", _COLOUR_NAMES[c]) for c in FLOOR_COLOURS)
-    doors = tuple(HL.Target("door", _COLOUR_NAMES[int(c)]) for c in DOOR_COLOURS)
-    return (HL.Target("lava"),) + floors + doors
-
-
-def scenario_triggers() -> tuple[HL.Trigger, ...]:
-    """Triggers the tables use: picking up the key, or entering any target."""
-    return (HL.Trigger("pickup", kind="key"),) + tuple(
-        HL.Trigger("enter", target=t) for t in scenario_targets()
-    )
-
-
-def check_sentence(sentence: str) -> HL.HazardConstraint:
+def check_sentence(sentence: str) -> language.Constraint:
     """Parse ``sentence`` and check that HazardRooms has what it names.
 
     Raises ``ValueError`` naming the word for a target or trigger the scenario lacks: a ball
     or box, a floor colour other than blue, green and yellow, a green door.
     """
-    c = HL.parse(sentence)
-    known = set(scenario_targets())
+    c = language.parse(sentence)
+    known = set(HAZARD_ROOMS_TARGETS)
     for clause in c.clauses:
         things = [clause.target]
         if clause.trigger is not None:
@@ -126,8 +121,8 @@ def check_sentence(sentence: str) -> HL.HazardConstraint:
                 )
         for t in things:
             if t is not None and t not in known:
-                floors = ", ".join(_COLOUR_NAMES[i] for i in FLOOR_COLOURS)
-                doors = ", ".join(_COLOUR_NAMES[int(i)] for i in DOOR_COLOURS)
+                floors = ", ".join(HAZARD_ROOMS_FLOORS)
+                doors = ", ".join(x.colour for x in HAZARD_ROOMS_TARGETS if x.kind == "door")
                 raise ValueError(
                     f"{sentence!r}: HazardRooms has no {t.colour!r} {t.kind} "
                     f"(floors: {floors}; doors: {doors})"
@@ -135,13 +130,12 @@ def check_sentence(sentence: str) -> HL.HazardConstraint:
     return c
 
 
-def _rows_to_arrays(rows: list[tuple[str, HL.HazardConstraint, int, int]]) -> dict:
+def _rows_to_arrays(rows: list[tuple[str, language.Constraint, int, int]]) -> dict:
     """Numeric table: ``tokens``, ``length``, ``type_id``, ``template_id``, ``target_id`` and
     ``spec`` (a :class:`~jaxgrid.monitor.ClauseSpec` of ``(R, NUM_CLAUSES)`` arrays)."""
-    specs = [M.encode(c) for _, c, _, _ in rows]
-    targets = scenario_targets()
+    targets = HAZARD_ROOMS_TARGETS
     return {
-        "tokens": np.stack([HL.tokenize(s) for s, *_ in rows]).astype(np.int32),
+        "tokens": HAZARD_ROOMS.tokenize_batch(s for s, *_ in rows),
         "length": np.array([len(s.split()) for s, *_ in rows], np.int32),
         "type_id": np.array([c.type_id for _, c, _, _ in rows], np.int32),
         "template_id": np.array([t for *_, t, _ in rows], np.int32),
@@ -152,17 +146,15 @@ def _rows_to_arrays(rows: list[tuple[str, HL.HazardConstraint, int, int]]) -> di
             ],
             np.int32,
         ),  # fmt: skip
-        "spec": jax.tree.map(lambda *xs: np.stack(xs), *specs),
+        "spec": M.encode_batch(c for _, c, _, _ in rows),
     }
 
 
 @functools.cache
 def _default_table(split: str, budgets: tuple, distances: tuple) -> dict:
-    rows = HL.clause_rows(scenario_targets(), scenario_triggers(), budgets, distances, split=split)
-    # A route crosses each door once, so a door budget would never bind: budgets are on ground.
-    rows = [r for r in rows if r.clause.type != "budget" or r.clause.target.kind != "door"]
+    rows = hazard_rooms_rows(split, budgets, distances)
     return _rows_to_arrays(
-        [(r.sentence, HL.HazardConstraint((r.clause,), r.sentence), r.template_id, 0)
+        [(r.sentence, language.Constraint((r.clause,), r.sentence), r.template_id, 0)
          for r in rows]
     )  # fmt: skip
 
@@ -172,23 +164,15 @@ def _sentence_table(sentences: tuple[str, ...]) -> dict:
     rows = []
     for s in sentences:
         c = check_sentence(s)
-        rows.append((" ".join(HL.normalize(s)), c, -1, 0))
+        rows.append((" ".join(language.normalize(s)), c, -1, 0))
     return _rows_to_arrays(rows)
 
 
 @struct.dataclass
-class EpisodeConstraint:
-    """The episode's constraint as the agent reads it (tokens) and metrics group it."""
+class HazardExtras(ConstrainedExtras):
+    """The constraint (``type_id`` an index into :data:`jaxgrid.language.CONSTRAINT_TYPES`,
+    ``template_id`` the first clause's, -1 for a given sentence) and monitor, and the goal."""
 
-    tokens: jax.Array  # int32 (MAX_LEN,)
-    type_id: jax.Array  # int32, index into CONSTRAINT_TYPES
-    template_id: jax.Array  # int32, first clause's template (-1 for a given sentence)
-
-
-@struct.dataclass
-class HazardExtras:
-    constraint: EpisodeConstraint
-    monitor: M.Monitor
     goal_pos: jax.Array  # int32 (2,)
     satisfiable: jax.Array  # bool: the goal is reachable without entering any zone
 
@@ -209,7 +193,7 @@ def _join(tok_a, len_a, tok_b, len_b):
     """Tokens of "<a> and <b>" from two right-padded rows."""
     pos = jnp.arange(tok_a.shape[-1])
     j = jnp.clip(pos - len_a - 1, 0, tok_a.shape[-1] - 1)
-    and_id = HL.VOCAB.index("and")
+    and_id = language.VOCAB.index("and")
     tail = jnp.where(pos - len_a - 1 < len_b, tok_b[j], 0)
     return jnp.where(pos < len_a, tok_a, jnp.where(pos == len_a, and_id, tail))
 
@@ -218,7 +202,7 @@ def _slot(spec: M.ClauseSpec, row, slot: int) -> M.ClauseSpec:
     return jax.tree.map(lambda a: a[row, slot], spec)
 
 
-class HazardRooms(Environment):
+class HazardRooms(ConstrainedEnvironment):
     """Four rooms, doors, a key, costly lava and floor strips, a rich constraint per episode.
 
     Static settings: ``split`` (table rows drawn from, as the paper's scenarios), ``budgets``
@@ -231,14 +215,15 @@ class HazardRooms(Environment):
     distances: tuple = struct.field(pytree_node=False, default=(2, 3))
     sentences: tuple | None = struct.field(pytree_node=False, default=None)
 
-    language = HL  # the language of ``obs["constraint"]``
+    language_table = HAZARD_ROOMS
+    INFO_KEYS = ConstrainedEnvironment.INFO_KEYS + ("satisfiable",)
 
     def __post_init__(self):
         super().__post_init__()
         name = type(self).__name__
         if self.split not in SPLITS:
             raise ValueError(f"{name}.split must be one of {SPLITS}, got {self.split!r}")
-        for field, hi in (("budgets", HL.MAX_BUDGET), ("distances", HL.MAX_DISTANCE)):
+        for field, hi in (("budgets", language.MAX_BUDGET), ("distances", language.MAX_DISTANCE)):
             values = getattr(self, field)
             if (
                 not isinstance(values, tuple)
@@ -287,7 +272,7 @@ class HazardRooms(Environment):
         xs, ys = G.coords(w, h)
         grid = jnp.asarray(G.room(w, h))
         grid = jnp.where(((xs == mx) | (ys == my))[..., None], jnp.asarray(WALL_CELL), grid)
-        colours = _distinct_colours(u[0:4], 4)
+        colours = G.distinct(u[0:4], DOOR_COLOURS, 4)
         # Doors: top and bottom of the vertical wall, left and right of the horizontal one.
         doors = [
             (mx, G.randint(u[4], 1, my)),
@@ -375,9 +360,9 @@ class HazardRooms(Environment):
             )
             return ec, jax.tree.map(lambda a: a[row], spec)
         type_ids = jnp.asarray(table["type_id"])
-        conj = ctype == HL.CONSTRAINT_TYPES.index("conjunction")
-        type_a = jnp.where(conj, G.randint(u[1], 0, len(HL.CLAUSE_TYPES)), ctype)
-        type_b = G.randint(u[2], 0, len(HL.CLAUSE_TYPES))
+        conj = ctype == language.CONSTRAINT_TYPES.index("conjunction")
+        type_a = jnp.where(conj, G.randint(u[1], 0, len(language.CLAUSE_TYPES)), ctype)
+        type_b = G.randint(u[2], 0, len(language.CLAUSE_TYPES))
         a = _pick(u[3], type_ids == type_a)
         targets = jnp.asarray(table["target_id"])
         b = _pick(u[4], (type_ids == type_b) & (targets != targets[a]))
@@ -438,7 +423,7 @@ class HazardRooms(Environment):
     def generate(self, key: jax.Array) -> State:
         table = jax.tree.map(jnp.asarray, self.constraint_table())
         key_t, key_c, key_l = jax.random.split(key, 3)
-        ctype = G.randint(jax.random.uniform(key_t), 0, len(HL.CONSTRAINT_TYPES))
+        ctype = G.randint(jax.random.uniform(key_t), 0, len(language.CONSTRAINT_TYPES))
 
         def cond(carry):
             i, *_, ok = carry
@@ -455,23 +440,12 @@ class HazardRooms(Environment):
         extras = HazardExtras(constraint=ec, monitor=monitor, goal_pos=goal, satisfiable=ok)
         return self.init_state(grid, agent, direction, key, extras)
 
-    # --- observation, step ----------------------------------------------------------------
-    def observe(self, state: State) -> dict:
-        obs = super().observe(state)
-        obs["constraint"] = state.extras.constraint.tokens
-        return obs
-
-    def info(self, state: State) -> dict:
-        false = jnp.zeros((), bool)
-        return self._info(state, false, jnp.zeros((), jnp.float32))
-
-    def _info(self, state, violation, cost) -> dict:
-        c = state.extras.constraint
+    # --- step -----------------------------------------------------------------------------
+    def step_info(self, state: State, violation: jax.Array, cost: jax.Array) -> dict:
+        """The constrained info, and ``satisfiable``: whether the episode's layout has a run
+        with no violation."""
         return {
-            "violation": violation,
-            "cost": cost,
-            "constraint_type": c.type_id,
-            "template_id": c.template_id,
+            **super().step_info(state, violation, cost),
             "satisfiable": state.extras.satisfiable,
         }
 
@@ -480,11 +454,8 @@ class HazardRooms(Environment):
         check_action(action)
         new, reward, terminated, truncated = transition(state, action, self.max_steps)
         terminated = terminated & (get_cell(new.grid, new.agent_pos)[0] == GOAL)  # lava: no end
-        monitor, cost, violation = M.update(
-            state.extras.monitor, state.agent_pos, new.agent_pos, state.carrying, new.carrying
-        )
-        new = new.replace(extras=new.extras.replace(monitor=monitor))
-        info = self._info(new, violation, cost)
+        new, cost, violation = self.judge(state, new)
+        info = self.step_info(new, violation, cost)
         return new, self.make_timestep(new, reward, terminated, truncated, info)
 
 

@@ -1,294 +1,323 @@
-"""The structured constraint language of Prakash et al. (2020), its tokenizer and parser.
+"""The constraint language: one grammar, vocabulary, tokenizer and parser for every scenario.
 
-An agent is told, in English, what it must not do: "do not go through the red door and
-stay away from lava". This module fixes the grammar that generates every such sentence,
-the vocabulary and token ids fed to the constraint checker, a parser that compiles a
-sentence into its meaning (:class:`Constraint`: the forbidden door colours and whether
-lava is forbidden), and a deterministic held-out split of (template, colour) combinations
-for measuring compositional generalisation. The arrays of :func:`combination_table` are what
-a jitted constraint sampler indexes into; :func:`sentence_table` and :func:`sentence_index`
-let models encode each distinct sentence once and gather rows.
+An agent is told in English what it must not do, and :func:`parse` compiles the sentence into
+its meaning, a :class:`Constraint` of one or two :class:`Clause` s that :mod:`jaxgrid.monitor`
+judges exactly. The clause types (in the spirit of HazardWorld, Yang et al. 2021, and TTCT,
+Dong et al. 2024):
 
-Grammar
+* **avoid**: "do not use the red door", "avoid lava", "stay away from the blue floor", and the
+  paper's short forms "no red door", "avoid blue door", "no lava";
+* **budget**: "do not step on lava more than three times", "use the red door at most once",
+  "touch the blue floor no more than twice" (1 to 10 times, as a word or a digit);
+* **sequential**: "after you pick up the key, do not use the red door", "do not touch lava
+  before you pick up the key", "once you pass the blue door, stay away from lava";
+* **proximity**: "never stand next to lava", "stay two cells away from the yellow floor";
+* the **conjunction** of any two clauses with "and" (a trigger scopes its own clause only).
+
+Every sentence of the paper (Prakash et al. 2020, Table 1: "do not go through the red door and
+stay away from lava") is a sentence here: the conjunction of an avoid-door clause and an
+avoid-lava one. Which sentences a scenario draws, with their template ids and held-out split,
+is a named table of :mod:`jaxgrid.sentences` (the paper's 35 templates are one).
+
+Meaning
 -------
-::
+Targets are cells: a door of a colour, lava, or a floor tile of a colour ("water" is the blue
+floor, "grass" the green floor). An *event* is the agent entering a target cell; for a
+proximity clause, entering any cell within Manhattan distance ``distance - 1`` of a target
+cell ("next to" is distance 2). A trigger is picking up an object (key, ball, box, optionally
+coloured) or entering a target cell. avoid: every event is a violation; budget ``count`` K:
+every event costs, each one beyond the K-th is a violation; sequential ``order="after"``:
+events once the trigger has happened are violations, ``order="before"``: events until it
+happens (a trigger and an event in the same step are judged with the trigger not yet
+happened); proximity: every entry into the forbidden zone is a violation.
 
-    SENTENCE    := DOOR_CLAUSE | DOOR_CLAUSE "and" LAVA_CLAUSE
-    COLOUR      := "red" | "green" | "blue" | "purple" | "yellow" | "grey"
-
-Every sentence names exactly one door colour; there are no lava-only sentences (the paper
-has none) and the conjunction is always door clause first, lava clause second. A
-*template* is one door clause, optionally joined by "and" to one lava clause, so there are
-7 door-only templates and 7 x 4 = 28 conjunction templates, 35 in all.
-
-=====  ========================================  ==========  ===========================
- id    door clause (C = COLOUR)                  paper type   family
-=====  ========================================  ==========  ===========================
- 0     do not use the C door                     1           "use" verbs
- 1     do not go through the C door              2           movement verbs
- 2     no C door                                 3           short form (no article)
- 3     avoid the C door                          2           movement verbs
- 4     avoid C door                              3           short form (no article)
- 5     never use the C door                      1           "use" verbs
- 6     stay away from the C door                 2           movement verbs
-=====  ========================================  ==========  ===========================
-
-=====  ========================================  =========================================
- id    lava clause                               conjunction paper type
-=====  ========================================  =========================================
- 0     stay away from lava                       4 (long lava clause)
- 1     no lava                                   5 (short lava clause)
- 2     avoid lava                                5 (short lava clause)
- 3     do not touch the lava                     4 (long lava clause)
-=====  ========================================  =========================================
-
-Template ids: door-only template ``d`` has id ``d`` (0-6); the conjunction of door clause
-``d`` and lava clause ``l`` has id ``7 + 4 * d + l`` (7-34). Paper types 1-3 are door-only
-(the door clause's family), 4-5 door + lava (decided by the lava clause alone). The paper's
-Table 1 examples map as: "do not use the red door" -> type 1, "do not go through the blue
-door" -> 2, "no yellow door" -> 3, "do not go through the red door and stay away from
-lava" -> 4, "avoid blue door and no lava" -> 5.
-
-Colours
--------
-``COLOUR`` ranges over all six MiniGrid colours, so any MiniGrid door can be described
-(e.g. an env converted with ``from_minigrid``). The scenarios only use the five
-non-green :data:`DOOR_COLOURS` (green is the goal's colour), and only those five appear in
-:func:`split_combinations` and :func:`combination_table`. "green" is therefore a valid
-word that the checker never sees in training.
-
-Normalisation
--------------
-Case is ignored, every ASCII character other than a letter or digit (punctuation, tabs,
-newlines) separates words, and runs of separators collapse, so "Do NOT use the red door!"
-and "do not use the red door" are the same sentence. A numeral keeps its sign, decimal point
-and digit groups ("-1", "+2", "1.5" and "1,000" are one word each), so that a number is never
-read as another; this grammar has no numbers, so any numeral is an unknown word. Non-ASCII
-characters are rejected.
-
-Held-out split
---------------
-The split holds out seven (door clause, colour) *phrases*, one per door clause
-(:data:`HELDOUT_DOOR_PHRASES`). A (template, colour) combination is held out iff its door
-clause with that colour is one of them, so a held-out phrase such as "never use the blue
-door" never occurs in any training sentence, while "never use the red door" and "avoid
-the blue door" do. That is exactly 20% of the combinations
-(35 of 175, or 7 of 35 door-only ones); every template keeps four colours and every colour
-appears in training, and the paper's Table 1 examples are all training combinations.
+Vocabulary, normalisation, numbers
+----------------------------------
+:data:`VOCAB` is fixed and append-only: a word's token id is its index, 0 pads, and its first
+23 words are the paper's, so every paper sentence keeps its historical ids. Case is ignored,
+every ASCII character other than a letter or digit separates words and runs of separators
+collapse ("Do NOT use the red door!" is "do not use the red door"); non-ASCII is refused. A
+numeral keeps its sign, decimal point and digit groups ("-1", "+2", "1.5", "1,000" are one word
+each), so a number is never read as another: a number a clause cannot take is refused by name
+with the range it allows (budgets 1 to :data:`MAX_BUDGET`, distances 1 to :data:`MAX_DISTANCE`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgrid.constants import COLOR_NAMES, COLOR_TO_IDX
+from jaxgrid.constants import COLOR_NAMES
+from jaxgrid.parsing import (
+    MINUS_WORDS,
+    NUMBER_WORDS,
+    Failure,
+    alt,
+    lit,
+    number,
+    numeral_value,
+    seq,
+    word,
+)
 
 __all__ = [
+    "CLAUSE_TYPES",
     "COLOURS",
-    "DOOR_CLAUSES",
-    "DOOR_COLOURS",
-    "HELDOUT_DOOR_PHRASES",
-    "LAVA_CLAUSES",
+    "CONSTRAINT_TYPES",
+    "DOOR_VERBS",
+    "GROUND_VERBS",
+    "MAX_BUDGET",
     "MAX_CHARS",
+    "MAX_DISTANCE",
     "MAX_LEN",
-    "NUM_TEMPLATES",
     "PAD",
-    "TEMPLATES",
     "VOCAB",
+    "Clause",
     "Constraint",
-    "Template",
-    "combination_table",
+    "Target",
+    "Trigger",
     "detokenize",
     "normalize",
     "parse",
-    "render",
-    "split_combinations",
+    "parses",
+    "sentence_index",
+    "sentence_lengths",
     "tokenize",
-    "tokenize_batch",
     "vocab_size",
 ]
 
-# --------------------------------------------------------------------------------------
-# Fixed tables
-# --------------------------------------------------------------------------------------
-
 #: Colours the grammar accepts, in MiniGrid index order (red 0, green 1, ..., grey 5).
 COLOURS: tuple[str, ...] = tuple(COLOR_NAMES)
-#: Door colours used by the scenarios: the five non-green colours, in MiniGrid order.
-DOOR_COLOURS: tuple[str, ...] = ("red", "blue", "purple", "yellow", "grey")
+#: Budgets count 1 to MAX_BUDGET events; proximity distances are 1 to MAX_DISTANCE cells.
+MAX_BUDGET = 10
+MAX_DISTANCE = 3
+
+#: Clause types, and constraint types (a conjunction is its own type), by id.
+CLAUSE_TYPES: tuple[str, ...] = ("avoid", "budget", "sequential", "proximity")
+CONSTRAINT_TYPES: tuple[str, ...] = CLAUSE_TYPES + ("conjunction",)
 
 PAD = "<pad>"
 #: The vocabulary; a word's token id is its index. Append-only: ids must stay stable.
 VOCAB: tuple[str, ...] = (
     PAD,
-    # colours, MiniGrid order
+    # the paper's words (ids 1-22): colours in MiniGrid order, nouns, "and", verbs
     "red", "green", "blue", "purple", "yellow", "grey",
-    # nouns and the conjunction
     "door", "lava", "and",
-    # function words and verbs
     "do", "not", "use", "go", "through", "the",
     "no", "avoid", "never", "stay", "away", "from", "touch",
+    # budgets, sequences, proximity
+    "more", "than", "times", "time", "once", "twice", "at", "most",
+    "after", "before", "until", "you", "pick", "up", "key", "ball", "box",
+    "pass", "step", "on", "walk", "floor", "water", "grass",
+    "stand", "next", "to", "cells", "cell", "keep",
+    *NUMBER_WORDS,
+    *(str(k) for k in range(1, len(NUMBER_WORDS) + 1)),
 )  # fmt: skip
 _WORD_TO_ID = {w: i for i, w in enumerate(VOCAB)}
+#: Token ids per sentence (right-padded); longer sentences are refused.
+MAX_LEN: int = 32
+#: Inputs longer than this many characters are rejected before any other processing.
+MAX_CHARS: int = 200
 
-_SLOT = "{colour}"  # the colour slot inside a clause pattern
 # A word: a numeral with its sign (spaces after the sign allowed: "- 2" is still negative),
 # decimal point and digit groups, when no letter or digit follows it ("1st" is an ordinary
 # word); else a run of letters and digits.
 _WORD = re.compile(r"(?:[+-]\s*)?\d+(?:[.,]\d+)*(?![a-z0-9])|[a-z0-9]+")
 _SPACE = re.compile(r"\s+")
 
-#: Door clause patterns (index = door clause id) and their paper type.
-DOOR_CLAUSES: tuple[tuple[str, int], ...] = (
-    ("do not use the {colour} door", 1),
-    ("do not go through the {colour} door", 2),
-    ("no {colour} door", 3),
-    ("avoid the {colour} door", 2),
-    ("avoid {colour} door", 3),
-    ("never use the {colour} door", 1),
-    ("stay away from the {colour} door", 2),
-)
-#: Lava clause patterns (index = lava clause id) and the paper type of a conjunction.
-LAVA_CLAUSES: tuple[tuple[str, int], ...] = (
-    ("stay away from lava", 4),
-    ("no lava", 5),
-    ("avoid lava", 5),
-    ("do not touch the lava", 4),
-)
 
-#: Longest sentence in tokens: "do not go through the C door and do not touch the lava".
-MAX_LEN: int = 13
-#: Inputs longer than this many characters are rejected before any other processing.
-MAX_CHARS: int = 200
+def vocab_size() -> int:
+    """Number of token ids of the whole language, padding included."""
+    return len(VOCAB)
 
-#: Held-out (door clause id, colour) phrases; see the module docstring. Chosen by hand:
-#: one colour per door clause, every door colour at least once, no Table 1 example.
-HELDOUT_DOOR_PHRASES: frozenset[tuple[int, str]] = frozenset({
-    (0, "blue"),    # do not use the blue door
-    (1, "yellow"),  # do not go through the yellow door
-    (2, "red"),     # no red door
-    (3, "purple"),  # avoid the purple door
-    (4, "grey"),    # avoid grey door
-    (5, "blue"),    # never use the blue door
-    (6, "yellow"),  # stay away from the yellow door
-})  # fmt: skip
+
+# --------------------------------------------------------------------------------------
+# Meaning
+# --------------------------------------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True)
-class Template:
-    """One sentence template: a door clause, optionally "and" a lava clause.
+class Target:
+    """Cells an event enters: ``kind`` "door", "lava" or "floor"; ``colour`` None for lava."""
 
-    Attributes:
-        id: template id (0-6 door-only, 7-34 conjunctions; see the module docstring).
-        text: the pattern, with ``{colour}`` where the door colour goes.
-        has_door: whether the template forbids a door (always True in this grammar).
-        has_lava: whether the template forbids lava.
-        paper_type: the paper's constraint type, 1-3 door-only, 4-5 door + lava.
-        door_clause: index into :data:`DOOR_CLAUSES`.
-        lava_clause: index into :data:`LAVA_CLAUSES`, or -1 when there is no lava clause.
-    """
-
-    id: int
-    text: str
-    has_door: bool
-    has_lava: bool
-    paper_type: int
-    door_clause: int
-    lava_clause: int
+    kind: str
+    colour: str | None = None
 
     @property
-    def words(self) -> tuple[str, ...]:
-        """The pattern's words, with ``"{colour}"`` as the colour slot."""
-        return tuple(self.text.split())
+    def phrase(self) -> str:
+        """Canonical noun phrase: "lava", "the red door", "the blue floor"."""
+        return "lava" if self.kind == "lava" else f"the {self.colour} {self.kind}"
 
 
-def _build_templates() -> tuple[Template, ...]:
-    out = [
-        Template(d, text, True, False, ptype, d, -1) for d, (text, ptype) in enumerate(DOOR_CLAUSES)
-    ]
-    for d, (door_text, _) in enumerate(DOOR_CLAUSES):
-        for l, (lava_text, ptype) in enumerate(LAVA_CLAUSES):  # noqa: E741
-            tid = len(DOOR_CLAUSES) + len(LAVA_CLAUSES) * d + l
-            out.append(Template(tid, f"{door_text} and {lava_text}", True, True, ptype, d, l))
-    assert [t.id for t in out] == list(range(len(out)))
-    return tuple(out)
+@dataclasses.dataclass(frozen=True)
+class Trigger:
+    """What arms or disarms a sequential clause.
+
+    ``action`` "pickup" (``kind`` key, ball or box; ``colour`` None for any colour) or "enter"
+    (``target``, a :class:`Target`).
+    """
+
+    action: str
+    kind: str | None = None
+    colour: str | None = None
+    target: Target | None = None
 
 
-#: All templates, indexed by id.
-TEMPLATES: tuple[Template, ...] = _build_templates()
-NUM_TEMPLATES: int = len(TEMPLATES)
+@dataclasses.dataclass(frozen=True)
+class Clause:
+    """One clause's meaning; see the module docstring for the rules.
+
+    Attributes:
+        type: "avoid", "budget", "sequential" or "proximity".
+        target: the cells whose entry is the event.
+        count: events allowed before the first violation (budget K; 0 otherwise).
+        distance: proximity: the least Manhattan distance to keep from every target cell
+            (cells nearer are the forbidden zone); 0 otherwise.
+        trigger: the sequential clause's trigger; None otherwise.
+        order: "after" (events once triggered violate) or "before" (events until then).
+    """
+
+    type: str
+    target: Target
+    count: int = 0
+    distance: int = 0
+    trigger: Trigger | None = None
+    order: str | None = None
+
+    @property
+    def radius(self) -> int:
+        """Manhattan radius of the forbidden zone around each target cell (0: the cell)."""
+        return max(self.distance - 1, 0)
 
 
 @dataclasses.dataclass(frozen=True)
 class Constraint:
-    """The meaning of a sentence: what the agent must never enter.
+    """A parsed sentence: one clause, or two joined by "and"; ``sentence`` is normalised."""
 
-    Attributes:
-        colour: the door colour the sentence names.
-        forbidden_door_colours: colours of the doors the agent must not enter (one colour).
-        forbids_lava: whether entering lava is a violation.
-        template_id: id of the matched template in :data:`TEMPLATES`.
-        paper_type: the paper's constraint type (1-5).
-    """
-
-    colour: str
-    forbidden_door_colours: frozenset[str]
-    forbids_lava: bool
-    template_id: int
-    paper_type: int
+    clauses: tuple[Clause, ...]
+    sentence: str
 
     @property
-    def colour_index(self) -> int:
-        """MiniGrid colour index of :attr:`colour` (red 0, green 1, blue 2, ...)."""
-        return COLOR_TO_IDX[self.colour]
+    def type(self) -> str:
+        """The clause's type, or "conjunction" for two clauses."""
+        return self.clauses[0].type if len(self.clauses) == 1 else "conjunction"
 
     @property
-    def sentence(self) -> str:
-        """The canonical sentence of this constraint (lower case, single spaces)."""
-        return render(self.template_id, self.colour)
+    def type_id(self) -> int:
+        """Index of :attr:`type` in :data:`CONSTRAINT_TYPES`."""
+        return CONSTRAINT_TYPES.index(self.type)
 
 
 # --------------------------------------------------------------------------------------
-# Parser: a word trie over the templates, with the colour slot as one edge
+# Grammar (combinators of :mod:`jaxgrid.parsing`)
 # --------------------------------------------------------------------------------------
+_COLOUR = word({c: c for c in COLOURS}, f"a colour ({', '.join(COLOURS)})")
+_COUNT = number(
+    MAX_BUDGET,
+    f"a count (1 to {MAX_BUDGET}, as a word or a digit)",
+    f"a budget counts 1 to {MAX_BUDGET} times, written one to ten or 1 to {MAX_BUDGET}",
+)
+_DIST = number(
+    MAX_DISTANCE,
+    f"a distance (1 to {MAX_DISTANCE} cells)",
+    f"a distance is 1 to {MAX_DISTANCE} cells, written one to three or 1 to {MAX_DISTANCE}",
+)
+
+_DOOR = seq(lit("the"), _COLOUR, lit("door"), build=lambda c: Target("door", c))
+_LAVA = alt(lit("lava", Target("lava")), lit("the lava", Target("lava")))
+_FLOOR = alt(
+    seq(lit("the"), _COLOUR, lit("floor"), build=lambda c: Target("floor", c)),
+    lit("water", Target("floor", "blue")),
+    lit("grass", Target("floor", "green")),
+)
+_GROUND = alt(_LAVA, _FLOOR)
+_TARGET = alt(_DOOR, _GROUND)
+#: Verbs of entering, by target kind (the first three are the ones tables use).
+DOOR_VERBS = ("use", "go through", "pass", "pass through")
+GROUND_VERBS = ("step on", "touch", "walk through", "walk on")
+_EVENT = alt(
+    *(seq(lit(v), _DOOR, build=lambda t: t) for v in DOOR_VERBS),
+    *(seq(lit(v), _GROUND, build=lambda t: t) for v in GROUND_VERBS),
+)
+_NEG = alt(lit("do not"), lit("never"))
+
+_AVOID = alt(
+    seq(_NEG, _EVENT, build=lambda t: Clause("avoid", t)),
+    seq(lit("avoid"), _TARGET, build=lambda t: Clause("avoid", t)),
+    seq(lit("stay away from"), _TARGET, build=lambda t: Clause("avoid", t)),
+    # The paper's short forms.
+    seq(lit("no"), _COLOUR, lit("door"), build=lambda c: Clause("avoid", Target("door", c))),
+    seq(lit("avoid"), _COLOUR, lit("door"), build=lambda c: Clause("avoid", Target("door", c))),
+    lit("no lava", Clause("avoid", Target("lava"))),
+)
+
+_TIMES = alt(
+    lit("once", 1),
+    lit("twice", 2),
+    seq(_COUNT, alt(lit("times"), lit("time")), build=lambda k: k),
+)
 
 
-@dataclasses.dataclass
-class _Node:
-    children: dict[str, _Node] = dataclasses.field(default_factory=dict)
-    template_id: int | None = None  # set where a complete sentence may end
+def _budget(t, k):
+    return Clause("budget", t, count=k)
 
 
-def _build_trie() -> _Node:
-    root = _Node()
-    for t in TEMPLATES:
-        node = root
-        for w in t.words:
-            node = node.children.setdefault(w, _Node())
-        assert node.template_id is None, f"duplicate template {t.text!r}"
-        node.template_id = t.id
-    return root
+_BUDGET = alt(
+    seq(_NEG, _EVENT, lit("more than"), _TIMES, build=_budget),
+    seq(_EVENT, lit("at most"), _TIMES, build=_budget),
+    seq(_EVENT, lit("no more than"), _TIMES, build=_budget),
+)
+
+_OBJECT = alt(
+    *(lit(f"the {k}", (k, None)) for k in ("key", "ball", "box")),
+    *(
+        seq(lit("the"), _COLOUR, lit(k), build=lambda c, k=k: (k, c))
+        for k in ("key", "ball", "box")
+    ),
+)
+_TRIGGER = alt(
+    seq(lit("pick up"), _OBJECT, build=lambda o: Trigger("pickup", kind=o[0], colour=o[1])),
+    seq(_EVENT, build=lambda t: Trigger("enter", target=t)),
+)
 
 
-_TRIE = _build_trie()
-_END = "<end of sentence>"
+def _sequential(order):
+    return lambda trig, core: Clause("sequential", core.target, trigger=trig, order=order)
 
 
-def _expected(node: _Node) -> list[str]:
-    """Human-readable list of what may follow at ``node``."""
-    out = []
-    for w in node.children:
-        out.append(f"a colour ({', '.join(COLOURS)})" if w == _SLOT else repr(w))
-    if node.template_id is not None:
-        out.append(_END)
-    return out
+_SEQUENTIAL = alt(
+    seq(alt(lit("after you"), lit("once you")), _TRIGGER, _AVOID, build=_sequential("after")),
+    seq(
+        _NEG,
+        _EVENT,
+        alt(lit("before you"), lit("until you")),
+        _TRIGGER,
+        build=lambda t, trig: Clause("sequential", t, trigger=trig, order="before"),
+    ),
+)
+
+_PROXIMITY = alt(
+    seq(_NEG, lit("stand next to"), _TARGET, build=lambda t: Clause("proximity", t, distance=2)),
+    seq(
+        alt(lit("stay"), lit("keep")),
+        _DIST,
+        alt(lit("cells"), lit("cell")),
+        lit("away from"),
+        _TARGET,
+        build=lambda d, t: Clause("proximity", t, distance=d),
+    ),
+)
+
+_CLAUSE = alt(_AVOID, _BUDGET, _SEQUENTIAL, _PROXIMITY)
+_SENTENCE = alt(
+    seq(_CLAUSE, build=lambda c: (c,)),
+    seq(_CLAUSE, lit("and"), _CLAUSE, build=lambda a, b: (a, b)),
+)
 
 
 def normalize(sentence: str) -> list[str]:
@@ -296,9 +325,9 @@ def normalize(sentence: str) -> list[str]:
 
     Every ASCII character that is not a letter or a digit acts as a separator, except the
     sign, decimal point and digit-group commas of a numeral, which stay in its word ("-1",
-    "+2", "1.5", "1,000"; "- 2" is "-2"). Raises
-    ``TypeError`` for a non-string and ``ValueError`` for input over :data:`MAX_CHARS`
-    characters or containing a non-ASCII character. No vocabulary check is done here.
+    "+2", "1.5", "1,000"; "- 2" is "-2"). Raises ``TypeError`` for a non-string and
+    ``ValueError`` for input over :data:`MAX_CHARS` characters or containing a non-ASCII
+    character. No vocabulary check is done here.
     """
     if not isinstance(sentence, str):
         raise TypeError(f"a constraint must be a str, got {type(sentence).__name__}")
@@ -313,70 +342,71 @@ def normalize(sentence: str) -> list[str]:
     return [_SPACE.sub("", w) for w in _WORD.findall(sentence.lower())]
 
 
+def _check_words(words: list[str], sentence: str) -> None:
+    """Raise for a word outside the vocabulary; numerals pass, for the grammar to judge where
+    they stand (a count and a distance allow different numbers)."""
+    for pos, w in enumerate(words, start=1):
+        if (w in _WORD_TO_ID and w != PAD) or w in MINUS_WORDS or numeral_value(w) is not None:
+            continue
+        raise ValueError(
+            f"unknown word {w!r} at position {pos} in {sentence!r}; valid vocabulary: "
+            + ", ".join(VOCAB[1:])
+        )
+
+
 def parse(sentence: str) -> Constraint:
     """Compile a sentence into its :class:`Constraint`.
 
     Checks run in order, each failing fast: type (``TypeError``), length in characters,
-    non-ASCII characters, emptiness, length in words, unknown words, then grammar (all
-    ``ValueError``). Unknown-word errors name the word and list the vocabulary; grammar
-    errors name the first unexpected word, its 1-based position and what was expected.
+    non-ASCII characters, emptiness, length in words, unknown words (listing the vocabulary),
+    a number its clause cannot take (negative, fractional, out of range or signed, with the
+    range allowed), then grammar: the first word where it fails, with its 1-based position and
+    what was expected there (all ``ValueError``).
     """
     words = normalize(sentence)
     if not words:
-        raise ValueError(f"empty constraint {sentence!r}: expected e.g. 'do not use the red door'")
+        raise ValueError(f"empty constraint {sentence!r}: expected e.g. 'avoid lava'")
     if len(words) > MAX_LEN:
-        raise ValueError(
-            f"constraint too long: {len(words)} words (the longest valid sentence has "
-            f"{MAX_LEN}): {sentence!r}"
-        )
-    for pos, w in enumerate(words, start=1):
-        if w not in _WORD_TO_ID or w == PAD:
-            raise ValueError(
-                f"unknown word {w!r} at position {pos} in {sentence!r}; valid vocabulary: "
-                + ", ".join(VOCAB[1:])
-            )
-
-    node, colour = _TRIE, None
-    for pos, w in enumerate(words, start=1):
-        if w in node.children:
-            node = node.children[w]
-        elif w in COLOURS and _SLOT in node.children:
-            node, colour = node.children[_SLOT], w
-        else:
-            raise ValueError(
-                f"ungrammatical constraint {sentence!r}: unexpected word {w!r} at position "
-                f"{pos}; expected {' or '.join(_expected(node))}"
-            )
-    if node.template_id is None:
+        raise ValueError(f"constraint too long: {len(words)} words (at most {MAX_LEN})")
+    _check_words(words, sentence)
+    fail = Failure()
+    parses = _SENTENCE(words, 0, fail)
+    done = [v for v, j in parses if j == len(words)]
+    for _, j in parses:  # a whole sentence followed by more words
+        if j < len(words):
+            fail.note(j, "the end of the sentence (at most two clauses)")
+    if done:
+        # Distinct parses always agree in meaning (tests check it); keep the first.
+        return Constraint(clauses=done[0], sentence=" ".join(words))
+    if fail.bad_number is not None:
+        pos, numeral, why = fail.bad_number
+        raise ValueError(f"number {numeral!r} at position {pos + 1} in {sentence!r} {why}")
+    more = ["'and'"] if "'and'" not in fail.expected and _ends_clause(words, fail.pos) else []
+    expected = " or ".join(fail.expected + more)
+    if fail.pos >= len(words):
         raise ValueError(
             f"incomplete constraint {sentence!r}: it ends after {words[-1]!r} at position "
-            f"{len(words)}; expected {' or '.join(_expected(node))}"
+            f"{len(words)}; expected {expected}"
         )
-
-    t = TEMPLATES[node.template_id]
-    assert colour is not None  # every template has a door clause
-    return Constraint(
-        colour=colour,
-        forbidden_door_colours=frozenset({colour}),
-        forbids_lava=t.has_lava,
-        template_id=t.id,
-        paper_type=t.paper_type,
+    w = words[fail.pos]
+    raise ValueError(
+        f"ungrammatical constraint {sentence!r}: unexpected word {w!r} at position "
+        f"{fail.pos + 1}; expected {expected}"
     )
 
 
-def render(template_id: int, colour: str) -> str:
-    """The canonical sentence of a template with a colour.
+def parses(sentence: str) -> list[tuple[Clause, ...]]:
+    """Every reading of a valid sentence as clauses (``parse`` keeps the first; all readings
+    of a sentence mean the same, which the tests check on every table row)."""
+    words = normalize(sentence)
+    return [v for v, j in _SENTENCE(words, 0, Failure()) if j == len(words)]
 
-    Every template has a door clause, so ``colour`` is required and must be one of
-    :data:`COLOURS`.
-    """
-    if isinstance(template_id, bool) or not isinstance(template_id, (int, np.integer)):
-        raise TypeError(f"template_id must be an int, got {type(template_id).__name__}")
-    if not 0 <= template_id < NUM_TEMPLATES:
-        raise ValueError(f"template_id {template_id} out of range [0, {NUM_TEMPLATES})")
-    if colour not in COLOURS:
-        raise ValueError(f"colour must be one of {COLOURS}, got {colour!r}")
-    return TEMPLATES[int(template_id)].text.replace(_SLOT, colour)
+
+def _ends_clause(words: list[str], pos: int) -> bool:
+    """Whether a whole first clause ends exactly at ``pos`` (so "and" may follow)."""
+    if "and" in words[:pos]:
+        return False
+    return any(j == pos for _, j in _CLAUSE(words, 0, Failure()))
 
 
 # --------------------------------------------------------------------------------------
@@ -384,32 +414,25 @@ def render(template_id: int, colour: str) -> str:
 # --------------------------------------------------------------------------------------
 
 
-def vocab_size() -> int:
-    """Number of token ids, padding included (the checker's embedding table size)."""
-    return len(VOCAB)
+def tokenize(sentence: str, max_len: int = MAX_LEN) -> np.ndarray:
+    """Token ids of a valid sentence: int32 ``(max_len,)``, right-padded with 0.
 
-
-def tokenize(sentence: str) -> np.ndarray:
-    """Token ids of a valid sentence: int32 ``(MAX_LEN,)``, right-padded with 0.
-
-    The sentence is parsed first, so invalid sentences raise as in :func:`parse`.
+    The sentence is parsed first, so invalid sentences raise as in :func:`parse`; one with more
+    than ``max_len`` words raises ``ValueError``. A sentence table's
+    :meth:`~jaxgrid.sentences.SentenceTable.tokenize` also checks its vocabulary.
     """
     parse(sentence)
-    ids = np.zeros((MAX_LEN,), dtype=np.int32)
     words = normalize(sentence)
+    if len(words) > max_len:
+        raise ValueError(f"{sentence!r} has {len(words)} words, more than {max_len} token ids")
+    ids = np.zeros((max_len,), np.int32)
     ids[: len(words)] = [_WORD_TO_ID[w] for w in words]
     return ids
 
 
-def tokenize_batch(sentences: Iterable[str]) -> np.ndarray:
-    """Stack :func:`tokenize` over sentences: int32 ``(N, MAX_LEN)``."""
-    rows = [tokenize(s) for s in sentences]
-    return np.stack(rows) if rows else np.zeros((0, MAX_LEN), dtype=np.int32)
-
-
 def detokenize(ids: Any, vocab: Sequence[str] = VOCAB) -> str:
     """Words of a 1-D sequence of token ids (list, numpy or JAX array), up to the first pad;
-    ``vocab`` maps ids to words (this language's by default)."""
+    ``vocab`` maps ids to words (the whole language's by default)."""
     arr = np.asarray(ids)
     if arr.ndim != 1:
         raise ValueError(f"detokenize expects a 1-D sequence of ids, got shape {arr.shape}")
@@ -423,86 +446,6 @@ def detokenize(ids: Any, vocab: Sequence[str] = VOCAB) -> str:
             raise ValueError(f"token id {i} out of range [0, {len(vocab)})")
         words.append(vocab[i])
     return " ".join(words)
-
-
-# --------------------------------------------------------------------------------------
-# Held-out split and arrays for a jitted sampler
-# --------------------------------------------------------------------------------------
-
-
-def is_heldout(template_id: int, colour: str) -> bool:
-    """Whether (template, colour) belongs to the held-out split (never seen in training)."""
-    return (TEMPLATES[template_id].door_clause, colour) in HELDOUT_DOOR_PHRASES
-
-
-def split_combinations(split: str, include_lava: bool = True) -> list[tuple[int, str]]:
-    """(template id, colour) combinations of a split, sorted by template then colour.
-
-    Args:
-        split: ``"train"``, ``"heldout"`` or ``"all"``.
-        include_lava: include the door + lava templates (False for scenarios without lava).
-
-    Only :data:`DOOR_COLOURS` are used. Raises ``ValueError`` for an unknown split.
-    """
-    if split not in ("train", "heldout", "all"):
-        raise ValueError(f"unknown split {split!r}; expected 'train', 'heldout' or 'all'")
-    out = []
-    for t in TEMPLATES:
-        if t.has_lava and not include_lava:
-            continue
-        for c in DOOR_COLOURS:
-            held = is_heldout(t.id, c)
-            if split == "all" or (split == "heldout") == held:
-                out.append((t.id, c))
-    return out
-
-
-def combination_table(split: str, include_lava: bool = True) -> dict[str, np.ndarray]:
-    """Numeric arrays describing every combination of a split, row k = combination k.
-
-    Keys (K = number of combinations, order as :func:`split_combinations`):
-        ``tokens`` int32 (K, MAX_LEN); ``template_id``, ``paper_type``, ``door_clause`` and
-        ``lava_clause`` (-1 if none) int32 (K,); ``door_colour`` int32 (K,) MiniGrid colour
-        index; ``forbids_lava`` bool (K,).
-
-    All values are numeric, so ``jax.tree.map(jnp.asarray, table)`` puts it on device.
-    """
-    combos = split_combinations(split, include_lava=include_lava)
-    rows: Sequence[Template] = [TEMPLATES[t] for t, _ in combos]
-    return {
-        "tokens": tokenize_batch(render(t, c) for t, c in combos),
-        "template_id": np.array([t.id for t in rows], dtype=np.int32),
-        "paper_type": np.array([t.paper_type for t in rows], dtype=np.int32),
-        "door_clause": np.array([t.door_clause for t in rows], dtype=np.int32),
-        "lava_clause": np.array([t.lava_clause for t in rows], dtype=np.int32),
-        "door_colour": np.array([COLOR_TO_IDX[c] for _, c in combos], dtype=np.int32),
-        "forbids_lava": np.array([t.has_lava for t in rows], dtype=bool),
-    }
-
-
-# --------------------------------------------------------------------------------------
-# Sentence tables: constraints come from a small fixed set, so models encode the table once
-# and each sample gathers its row.
-# --------------------------------------------------------------------------------------
-@functools.cache
-def _grammar_table() -> np.ndarray:
-    rows = [tokenize(render(t.id, c)) for t in TEMPLATES for c in COLOURS]
-    return np.stack(rows).astype(np.int32)
-
-
-def sentence_table(env: Any = None) -> np.ndarray:
-    """int32 ``(K, MAX_LEN)`` token ids of every sentence a source can produce.
-
-    ``env`` None: every sentence of the grammar (each template with each of the six colours,
-    ``K = 210``; the tokenizer is canonical, so any valid constraint's tokens are one of these
-    rows). An env with a ``constraint_table()`` (the scenarios): the sentences of its split.
-    Any other env: one pad row, so that code indexing the table works unchanged.
-    """
-    if env is None:
-        return _grammar_table()
-    if not hasattr(env, "constraint_table"):
-        return np.full((1, MAX_LEN), VOCAB.index(PAD), np.int32)
-    return np.asarray(env.constraint_table()["tokens"], np.int32)
 
 
 def sentence_lengths(tokens: Any) -> Any:

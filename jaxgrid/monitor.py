@@ -1,4 +1,7 @@
-"""The exact monitor of :mod:`jaxgrid.hazard_language` constraints: a jittable state machine.
+"""The exact monitor of :mod:`jaxgrid.language` constraints: a jittable state machine.
+
+It is the single judge of every constrained environment (the paper's scenarios, HazardRooms):
+an environment keeps a :class:`Monitor` in its state and reports what :func:`update` returns.
 
 A constraint is encoded once on the host (:func:`encode`) into a :class:`ClauseSpec` of small
 integer arrays, one entry per clause slot (:data:`NUM_CLAUSES`; a one-clause constraint leaves
@@ -9,7 +12,7 @@ episode), a per-clause event counter and a per-clause "triggered" flag. :func:`u
 advances it by one environment step and returns the step's cost and violation. Everything is
 a handful of array lookups, so the monitor adds little to a vmapped step.
 
-Rules (see :mod:`jaxgrid.hazard_language`): an event is the agent entering a cell of its
+Rules (see :mod:`jaxgrid.language`): an event is the agent entering a cell of its
 clause's zone; it is costly when the clause is armed (always, after its trigger, or before
 it); a costly event is a violation once the clause's count exceeds its budget (0 for every
 type but budget). A trigger updates its flag after the step's events are judged.
@@ -17,23 +20,19 @@ type but budget). A trigger updates its flag after the step's events are judged.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
 from jaxgrid.constants import BALL, BOX, COLOR_TO_IDX, DOOR, EMPTY, FLOOR, KEY, LAVA
-from jaxgrid.hazard_language import (
-    MAX_BUDGET,
-    MAX_DISTANCE,
-    Clause,
-    HazardConstraint,
-    Target,
-    Trigger,
-)
+from jaxgrid.language import MAX_BUDGET, MAX_DISTANCE, Clause, Constraint, Target, Trigger
 
 __all__ = [
-    "NUM_CLAUSES", "ClauseSpec", "Monitor", "empty_slot", "encode", "start", "update", "zone_masks",
+    "MAX_RADIUS", "NUM_CLAUSES", "ClauseSpec", "Monitor", "empty_slot", "encode", "encode_batch",
+    "mentions", "start", "update", "zone_masks",
 ]  # fmt: skip
 
 #: Clause slots per constraint: a sentence has one clause or two joined by "and".
@@ -41,8 +40,8 @@ NUM_CLAUSES = 2
 #: Gates: when a clause's events count.
 ALWAYS, AFTER, BEFORE = 0, 1, 2
 _KINDS = {"door": DOOR, "lava": LAVA, "floor": FLOOR, "key": KEY, "ball": BALL, "box": BOX}
-# Zones reach distance - 1 cells out; zone_masks unrolls that many dilations.
-_MAX_RADIUS = MAX_DISTANCE - 1
+#: Zones reach distance - 1 cells out; zone_masks unrolls up to that many dilations.
+MAX_RADIUS = MAX_DISTANCE - 1
 
 
 @struct.dataclass
@@ -116,13 +115,13 @@ def _encode_clause(c: Clause | None) -> tuple:
     )
 
 
-def encode(constraint: HazardConstraint | Clause | tuple) -> ClauseSpec:
+def encode(constraint: Constraint | Clause | tuple) -> ClauseSpec:
     """Numpy :class:`ClauseSpec` of a constraint (or one clause, or a tuple of clauses).
 
     Raises ``ValueError`` for a clause count outside 0..MAX_BUDGET or a distance outside
     0..MAX_DISTANCE (a clause built by hand; parsed ones are always in range).
     """
-    if isinstance(constraint, HazardConstraint):
+    if isinstance(constraint, Constraint):
         clauses = constraint.clauses
     elif isinstance(constraint, Clause):
         clauses = (constraint,)
@@ -142,6 +141,18 @@ def encode(constraint: HazardConstraint | Clause | tuple) -> ClauseSpec:
     )
 
 
+def encode_batch(constraints: Iterable[Constraint]) -> ClauseSpec:
+    """Numpy :class:`ClauseSpec` of ``(R, NUM_CLAUSES)`` arrays: row r encodes constraint r."""
+    specs = [encode(c) for c in constraints]
+    return jax.tree.map(lambda *xs: np.stack(xs), *specs)
+
+
+def mentions(spec: ClauseSpec, kind: int) -> jax.Array:
+    """bool ``(...)``: whether an active clause of ``spec`` (``(..., NUM_CLAUSES)``) targets
+    cells of the MiniGrid object ``kind`` (e.g. whether a constraint forbids lava at all)."""
+    return jnp.any(jnp.asarray(spec.active) & (jnp.asarray(spec.target_kind) == kind), axis=-1)
+
+
 def empty_slot() -> ClauseSpec:
     """The encoding of an unused clause slot (numpy scalars)."""
     return jax.tree.map(lambda a: a[-1], encode(Clause("avoid", Target("lava"))))
@@ -157,12 +168,21 @@ def _dilate(mask: jax.Array) -> jax.Array:
     return mask | pad[:-2, 1:-1] | pad[2:, 1:-1] | pad[1:-1, :-2] | pad[1:-1, 2:]
 
 
-def zone_masks(grid: jax.Array, spec: ClauseSpec) -> tuple[jax.Array, jax.Array]:
-    """bool ``(C, W, H)`` forbidden zones and enter-trigger cells of each clause slot."""
+def zone_masks(
+    grid: jax.Array, spec: ClauseSpec, max_radius: int = MAX_RADIUS
+) -> tuple[jax.Array, jax.Array]:
+    """bool ``(C, W, H)`` forbidden zones and enter-trigger cells of each clause slot.
+
+    ``max_radius`` (static) bounds the zones' radius: a table whose clauses never grow their
+    zone passes 0, so no dilation reads the grid at shifted cells (each such read makes XLA
+    recompute the layout that produced the grid, in a reset that it fuses).
+    """
+    if not 0 <= max_radius <= MAX_RADIUS:
+        raise ValueError(f"max_radius must be in 0..{MAX_RADIUS}, got {max_radius!r}")
 
     def one(kind, colour, radius, tkind, tcolour, pickup, active):
         zone = _cells(grid, kind, colour)
-        for r in range(1, _MAX_RADIUS + 1):  # static and tiny
+        for r in range(1, max_radius + 1):  # static and tiny
             zone = jnp.where(radius >= r, _dilate(zone), zone)
         trig = _cells(grid, tkind, tcolour) & ~pickup & (tkind >= 0)
         return zone & active, trig
@@ -174,10 +194,11 @@ def zone_masks(grid: jax.Array, spec: ClauseSpec) -> tuple[jax.Array, jax.Array]
     )  # fmt: skip
 
 
-def start(spec: ClauseSpec, grid: jax.Array) -> Monitor:
-    """A fresh episode's monitor (no events counted, nothing triggered)."""
+def start(spec: ClauseSpec, grid: jax.Array, max_radius: int = MAX_RADIUS) -> Monitor:
+    """A fresh episode's monitor (no events counted, nothing triggered); ``max_radius`` as in
+    :func:`zone_masks` (a clause of a larger radius would get a smaller zone)."""
     spec = jax.tree.map(jnp.asarray, spec)
-    zone, trig = zone_masks(grid, spec)
+    zone, trig = zone_masks(grid, spec, max_radius)
     return Monitor(
         spec=spec,
         zone=zone,

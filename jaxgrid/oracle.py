@@ -1,10 +1,11 @@
 """A privileged BFS policy that solves every scenario without violating its constraint.
 
-:func:`oracle_action` reads the full state (grid, carried object, the episode's
-:class:`~jaxgrid.scenarios.Constraint`) and returns the next MiniGrid action. It is pure
-``jnp``: jittable, vmappable, with no Python branching on traced values. It is used to check
-that every generated episode is solvable without a violation, as an expert for tests, and to
-measure how often the unconstrained shortest route would break the constraint.
+:func:`oracle_action` reads the full state (grid, carried object, the episode's constraint
+and monitor, :class:`~jaxgrid.constrained.ConstrainedExtras`) and returns the next MiniGrid
+action. It is pure ``jnp``: jittable, vmappable, with no Python branching on traced values.
+It is used to check that every generated episode is solvable without a violation, as an
+expert for tests, and to measure how often the unconstrained shortest route would break the
+constraint.
 
 Planning is a breadth-first distance field over the ``(W, H)`` grid, computed by relaxing
 shifted copies of the field in a ``lax.while_loop`` until nothing changes (at most ``W * H``
@@ -31,6 +32,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from jaxgrid import monitor as M
 from jaxgrid.constants import (
     DIR_TO_VEC,
     DOOR,
@@ -47,6 +49,7 @@ from jaxgrid.constants import (
     RIGHT,
     TOGGLE,
 )
+from jaxgrid.constrained import ConstrainedExtras, DoorConstraint
 from jaxgrid.dynamics import front_pos, get_cell
 from jaxgrid.types import State
 
@@ -121,9 +124,11 @@ def oracle_action(
     """Next action (int32) of the BFS oracle; see the module docstring.
 
     Args:
-        state: a single (unbatched) state; ``vmap`` for batches. If ``state.extras`` has a
-            ``constraint`` (scenarios), doors of its ``door_colour`` are never entered; if it has
-            a ``monitor`` (:mod:`jaxgrid.monitor`), no clause's forbidden zone is entered.
+        state: a single (unbatched) state; ``vmap`` for batches. If its constraint is a
+            :class:`~jaxgrid.constrained.DoorConstraint` (the paper's scenarios), doors of its
+            ``door_colour`` are never entered (a caller may plan with another colour by
+            replacing it); any other constraint's monitor zones (:mod:`jaxgrid.monitor`) are
+            never entered.
         env: unused (everything is read from ``state``); accepted so the call mirrors
             ``env.step(state, action)``.
         obey_constraint: bool (may be traced); ``False`` plans as if no door were forbidden.
@@ -132,15 +137,15 @@ def oracle_action(
     del env
     grid = state.grid
     kind = grid[..., 0]
-    constraint = getattr(state.extras, "constraint", None)  # static: the pytree's structure
+    # Static: the type of the state's extras and constraint (the pytree's structure).
+    extras = state.extras if isinstance(state.extras, ConstrainedExtras) else None
     forbidden = jnp.int32(-1)
-    if hasattr(constraint, "door_colour"):
-        forbidden = jnp.where(obey_constraint, constraint.door_colour, forbidden)
+    if extras is not None and isinstance(extras.constraint, DoorConstraint):
+        forbidden = jnp.where(obey_constraint, extras.constraint.door_colour, forbidden)
 
     passable = passable_cells(grid, state.carrying, forbidden, avoid_lava=avoid_lava)
-    monitor = getattr(state.extras, "monitor", None)  # rich constraints: their forbidden zones
-    if monitor is not None:
-        passable = passable & ~(jnp.any(monitor.zone, 0) & obey_constraint)
+    if extras is not None and not isinstance(extras.constraint, DoorConstraint):
+        passable = passable & ~(jnp.any(extras.monitor.zone, 0) & obey_constraint)
     # Field 0 leads to the goal, field 1 to a key (used when the goal is out of reach).
     targets = jnp.stack([kind == GOAL, kind == KEY])
     dist = distance_field(targets, jnp.broadcast_to(passable, targets.shape))
@@ -194,7 +199,7 @@ def rollout_oracle(
     * ``length``: int32, steps taken until the episode ended (``max_steps`` if it did not);
     * ``done``: bool, the episode terminated or was truncated within ``max_steps``;
     * ``constraint_type``: int32, paper type 1-5 (0 for envs without a constraint); for a
-      :mod:`jaxgrid.hazard_language` constraint, its index in ``CONSTRAINT_TYPES``;
+      HazardRooms constraint, its index in :data:`jaxgrid.language.CONSTRAINT_TYPES`;
     * ``door_colour`` and ``forbids_lava``: the episode's constraint (-1 / False if none).
 
     The loop is jitted once per environment configuration, episode count and horizon; the
@@ -238,13 +243,14 @@ def _rollout(env, key, obey_constraint, avoid_lava, *, num_episodes, horizon):
 
     carry = (0, states, zeros_b, zeros_b, zeros_i, zeros_i)
     _, states, done, success, violations, length = lax.while_loop(cond, body, carry)
-    constraint = getattr(states.extras, "constraint", None)
-    if constraint is None:
+    extras = states.extras
+    if not isinstance(extras, ConstrainedExtras):
         ctype, colour, lava = zeros_i, zeros_i - 1, zeros_b
-    elif not hasattr(constraint, "door_colour"):  # a rich constraint: its type id
-        ctype, colour, lava = constraint.type_id, zeros_i - 1, zeros_b
+    elif not isinstance(extras.constraint, DoorConstraint):  # a rich constraint: its type id
+        ctype, colour, lava = extras.constraint.type_id, zeros_i - 1, zeros_b
     else:
-        ctype, colour, lava = constraint.paper_type, constraint.door_colour, constraint.forbids_lava
+        c = extras.constraint
+        ctype, colour, lava = c.type_id, c.door_colour, M.mentions(extras.monitor.spec, LAVA)
     return {
         "success": success,
         "violations": violations,

@@ -12,13 +12,17 @@
 
 Door colours are distinct and drawn from the five non-green colours; the agent's direction is
 random. Every episode can be solved without a violation: a constraint forbids one door colour
-(and maybe lava) and there is always another way. The ground-truth monitor lives in
-:meth:`Scenario.step`: a violation is the agent *entering* a forbidden cell (a door of the
-forbidden colour, or lava when lava is forbidden). Each step reports ``info["violation"]``,
-``info["cost"]``, ``info["constraint_type"]`` (paper type 1-5) and ``info["template_id"]``.
+(and maybe lava) and there is always another way. Constraints are rows of the paper's sentence
+table (:data:`jaxgrid.sentences.PAPER`); the monitor (:mod:`jaxgrid.monitor`) in the state
+judges them, as for every constrained environment: a violation is the agent *entering* a
+forbidden cell (a door of the forbidden colour, or lava when lava is forbidden). Each step
+reports ``info["violation"]``, ``info["cost"]``, ``info["constraint_type"]`` (paper type 1-5)
+and ``info["template_id"]``.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -26,52 +30,51 @@ import numpy as np
 from flax import struct
 
 from jaxgrid import grid as G
-from jaxgrid import language
+from jaxgrid import language, sentences
+from jaxgrid import monitor as M
 from jaxgrid.constants import (
-    BLUE,
     CLOSED,
+    COLOR_TO_IDX,
     DOOR,
     GOAL_CELL,
-    GREY,
     KEY,
     LAVA,
     LAVA_CELL,
     LOCKED,
-    PURPLE,
-    RED,
     WALL_CELL,
-    YELLOW,
 )
+from jaxgrid.constrained import ConstrainedEnvironment, ConstrainedExtras, DoorConstraint
 from jaxgrid.dynamics import get_cell, transition
-from jaxgrid.environment import Environment, check_action
+from jaxgrid.environment import check_action
+from jaxgrid.paraphrases import SPLITS
 from jaxgrid.types import State, TimeStep
 
-DOOR_COLOURS = np.array([RED, BLUE, PURPLE, YELLOW, GREY], np.int32)  # never green (the goal)
-SPLITS = ("train", "heldout", "all")
+#: Door colours, MiniGrid indices: the five non-green colours the tables name (never the goal's).
+DOOR_COLOURS = np.array([COLOR_TO_IDX[c] for c in sentences.DOOR_COLOURS], np.int32)
 
 
 @struct.dataclass
-class Constraint:
-    """The episode's constraint: what the agent reads and what the monitor checks."""
+class ScenarioExtras(ConstrainedExtras):
+    """The constraint (``type_id`` its paper type, ``template_id`` a
+    :data:`jaxgrid.sentences.TEMPLATES` index) and monitor, the goal, and the teleport cell."""
 
-    tokens: jax.Array  # int32 (MAX_LEN,) token ids
-    template_id: jax.Array  # int32, language.TEMPLATES index
-    paper_type: jax.Array  # int32, 1-5
-    door_colour: jax.Array  # int32 colour index of the forbidden door
-    forbids_lava: jax.Array  # bool
-
-
-@struct.dataclass
-class ScenarioExtras:
-    constraint: Constraint
     goal_pos: jax.Array  # int32 (2,)
     teleport_pos: jax.Array  # int32 (2,): where allowed lava sends the agent
 
 
+@functools.cache
+def _constraint_table(split: str, has_lava: bool) -> dict:
+    table = sentences.combination_table(split, include_lava=has_lava)
+    combos = sentences.split_combinations(split, include_lava=has_lava)
+    table["spec"] = M.encode_batch(language.parse(sentences.render(t, c)) for t, c in combos)
+    return table
+
+
 def sample_constraint(
     u: jax.Array, table: dict, nameable: jax.Array, absent: jax.Array, absent_prob
-) -> Constraint:
-    """Draw one (template, colour) row of ``table`` from a uniform ``u``.
+) -> tuple[DoorConstraint, M.ClauseSpec]:
+    """Draw one (template, colour) row of ``table`` from a uniform ``u``: its constraint and
+    its monitor encoding.
 
     With probability ``absent_prob`` the colour is one no door of the episode has (``absent``,
     bool per colour index); otherwise one of the doors the constraint may name (``nameable``).
@@ -89,20 +92,20 @@ def sample_constraint(
     )
     cum = jnp.cumsum(weight)
     row = jnp.argmax(cum > u * cum[-1])
-    return Constraint(
+    constraint = DoorConstraint(
         tokens=jnp.asarray(table["tokens"])[row],
+        type_id=jnp.asarray(table["paper_type"])[row],
         template_id=jnp.asarray(table["template_id"])[row],
-        paper_type=jnp.asarray(table["paper_type"])[row],
         door_colour=colour[row],
-        forbids_lava=jnp.asarray(table["forbids_lava"])[row],
     )
+    return constraint, jax.tree.map(lambda a: jnp.asarray(a)[row], table["spec"])
 
 
-class Scenario(Environment):
-    """Base of the constrained scenarios: constraint sampling, observation, monitor.
+class Scenario(ConstrainedEnvironment):
+    """Base of the paper's scenarios: layouts, constraint sampling and the lava rule.
 
     ``split`` selects the (template, colour) combinations constraints are drawn from
-    (``"train"``, ``"heldout"`` or ``"all"``; see :func:`jaxgrid.language.split_combinations`).
+    (``"train"``, ``"heldout"`` or ``"all"``; see :func:`jaxgrid.sentences.split_combinations`).
     ``absent_colour_prob`` (a pytree leaf, so it can be vmapped) is the chance that the
     constraint names a colour no door in the episode has.
     """
@@ -110,6 +113,8 @@ class Scenario(Environment):
     split: str = struct.field(pytree_node=False, default="train")
     absent_colour_prob: float = 0.2
     has_lava: bool = struct.field(pytree_node=False, default=False)
+
+    language_table = sentences.PAPER
 
     def __post_init__(self):
         super().__post_init__()
@@ -121,7 +126,9 @@ class Scenario(Environment):
             raise ValueError(f"{name}.absent_colour_prob must be in [0, 1], got {p!r}")
 
     def constraint_table(self) -> dict:
-        return language.combination_table(self.split, include_lava=self.has_lava)
+        """:func:`jaxgrid.sentences.combination_table` of the split, with ``spec``, each row's
+        :class:`~jaxgrid.monitor.ClauseSpec` (``(K, NUM_CLAUSES)`` arrays)."""
+        return _constraint_table(self.split, self.has_lava)
 
     def layout(self, u: jax.Array):
         """``(grid, agent_pos, goal_pos, nameable door colours, all door colours)``."""
@@ -136,47 +143,33 @@ class Scenario(Environment):
         nameable_mask = jnp.any(all_colours[:, None] == nameable[None, :], axis=1)
         absent_mask = ~jnp.any(all_colours[:, None] == present[None, :], axis=1)
         absent_mask = absent_mask & jnp.any(all_colours[:, None] == DOOR_COLOURS[None, :], axis=1)
-        constraint = sample_constraint(
-            u[-1], self.constraint_table(), nameable_mask, absent_mask, self.absent_colour_prob
+        table = self.constraint_table()
+        constraint, spec = sample_constraint(
+            u[-1], table, nameable_mask, absent_mask, self.absent_colour_prob
         )
         direction = G.randint(u[-2], 0, 4)
         extras = ScenarioExtras(
-            constraint=constraint, goal_pos=goal, teleport_pos=_next_to(grid, goal)
+            constraint=constraint,
+            # The paper's clauses never grow their zone: no dilation (static, from the table).
+            monitor=M.start(spec, grid, int(np.max(table["spec"].radius))),
+            goal_pos=goal,
+            teleport_pos=_next_to(grid, goal),
         )
         return self.init_state(grid, agent, direction, key, extras)
 
-    def observe(self, state: State) -> dict:
-        obs = super().observe(state)
-        obs["constraint"] = state.extras.constraint.tokens
-        return obs
-
-    def info(self, state: State) -> dict:
-        return self._info(state, jnp.zeros((), bool))
-
-    def _info(self, state: State, violation: jax.Array) -> dict:
-        c = state.extras.constraint
-        return {
-            "violation": violation,
-            "cost": violation.astype(jnp.float32),
-            "constraint_type": c.paper_type,
-            "template_id": c.template_id,
-        }
-
     def step(self, state: State, action: jax.Array) -> tuple[State, TimeStep]:
-        """MiniGrid step + lava rule + ground-truth monitor (actions as in ``Environment.step``)."""
+        """MiniGrid step judged by the monitor, then the lava rule (actions as in
+        ``Environment.step``): entering lava that the constraint does not forbid teleports the
+        agent next to the goal instead of ending the episode."""
         check_action(action)
-        c = state.extras.constraint
         new, reward, terminated, truncated = transition(state, action, self.max_steps)
+        new, cost, violation = self.judge(state, new)
         entered = jnp.any(new.agent_pos != state.agent_pos)
-        cell = get_cell(new.grid, new.agent_pos)
-        into_lava = entered & (cell[0] == LAVA)
-        violation = (entered & (cell[0] == DOOR) & (cell[1] == c.door_colour)) | (
-            into_lava & c.forbids_lava
-        )
-        teleport = into_lava & ~c.forbids_lava
+        into_lava = entered & (get_cell(new.grid, new.agent_pos)[0] == LAVA)
+        teleport = into_lava & ~M.mentions(state.extras.monitor.spec, LAVA)
         new = new.replace(agent_pos=jnp.where(teleport, state.extras.teleport_pos, new.agent_pos))
         terminated = terminated & ~teleport
-        info = self._info(new, violation)
+        info = self.step_info(new, violation, cost)
         return new, self.make_timestep(new, reward, terminated, truncated, info)
 
 
@@ -186,18 +179,6 @@ def _next_to(grid: jax.Array, pos: jax.Array) -> jax.Array:
     cand = pos[None, :] + offsets
     free = jax.vmap(lambda p: get_cell(grid, p)[0] == 1)(cand)
     return cand[jnp.argmax(free)]
-
-
-def _distinct_colours(u: jax.Array, n: int) -> jax.Array:
-    """``n`` distinct door colours, uniformly (a partial Fisher-Yates over DOOR_COLOURS)."""
-    pool = jnp.asarray(DOOR_COLOURS)
-    out = []
-    for i in range(n):  # n is static and tiny (2)
-        k = G.randint(u[i], i, len(DOOR_COLOURS))
-        pi, pk = pool[i], pool[k]
-        pool = pool.at[i].set(pk).at[k].set(pi)
-        out.append(pool[i])
-    return jnp.stack(out)
 
 
 def _vertical_wall(grid, xs, x):
@@ -222,7 +203,7 @@ class TwoRooms(Scenario):
         row1 = G.randint(u[0], 1, h - 1)
         row2 = G.randint(u[1], 1, h - 2)
         row2 = row2 + (row2 >= row1)
-        colours = _distinct_colours(u[2:4], 2)
+        colours = G.distinct(u[2:4], DOOR_COLOURS, 2)
         grid = G.put(grid, (wall_x, row1), G.cell(DOOR, colours[0], CLOSED))
         grid = G.put(grid, (wall_x, row2), G.cell(DOOR, colours[1], CLOSED))
         agent_left = u[4] < 0.5
@@ -262,7 +243,7 @@ class ThreeRoomsKey(Scenario):
         grid = jnp.asarray(G.room(w, h))
         grid = _vertical_wall(_vertical_wall(grid, xs, wall1), xs, wall2)
         grid = G.put(grid, (wall2, h - 2), np.array([1, 0, 0]))  # the gap: the longer route
-        colours = _distinct_colours(u[0:2], 2)  # [locked door/key, wall-2 door]
+        colours = G.distinct(u[0:2], DOOR_COLOURS, 2)  # [locked door/key, wall-2 door]
         locked_row = G.randint(u[2], 1, h - 1)
         door_row = G.randint(u[3], 1, h - 2)  # never the gap row
         grid = G.put(grid, (wall1, locked_row), G.cell(DOOR, colours[0], LOCKED))

@@ -156,13 +156,12 @@ def render_episode(
     rewards = np.asarray(timesteps.reward, np.float64).reshape(num)
     done = (np.asarray(timesteps.terminated) | np.asarray(timesteps.truncated)).reshape(num)
     tokens = np.asarray(obs["constraint"]) if "constraint" in obs else None
-    detokenize = getattr(base, "language", language).detokenize  # the env's own vocabulary
     violations = np.asarray(info["violation"]).reshape(num) if "violation" in info else None
     lines = []
     for t in range(num):
         rows = []
         if tokens is not None:
-            rows.append(detokenize(tokens[t]))
+            rows.append(language.detokenize(tokens[t]))
         status = f"step {int(steps[t])}   reward {rewards[t]:.2f}"
         rows.append(status + ("   done" if done[t] else ""))
         lines.append(rows)

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from checker.data.files import CORE, CheckerDataset
-from jaxgrid import language
+from jaxgrid import language, sentences
 from jaxgrid.constants import BALL, BOX, CLOSED, COLOR_NAMES, DOOR, EMPTY, KEY, LOCKED
 from jaxgrid.observation import see_behind, visibility_mask
 
@@ -77,7 +77,7 @@ def with_colour_counterfactuals(
             f"colour counterfactuals need lookahead 0 or 1 (exact relabelling), got {lookahead}"
         )
     split = dataset.meta.get("split") or "all"
-    combos = language.split_combinations(split)
+    combos = sentences.split_combinations(split)
     by_template: dict[int, list[str]] = {}
     for t, c in combos:
         by_template.setdefault(t, []).append(c)
@@ -98,13 +98,13 @@ def with_colour_counterfactuals(
         others = [c for c in by_template.get(t, []) if c not in named]
         if len(named) != 1 or not others:
             continue
-        if language.TEMPLATES[t].has_lava and not (
+        if sentences.TEMPLATES[t].has_lava and not (
             ahead[r] and door_ahead[r] == COLOR_NAMES.index(named[0])
         ):
             continue
         for c in rng.choice(others, size=min(per_positive, len(others)), replace=False):
             rows.append(r)
-            tokens.append(language.tokenize(language.render(t, str(c))))
+            tokens.append(sentences.PAPER.tokenize(sentences.render(t, str(c))))
     if not rows:
         return dataset
     rows = np.asarray(rows)

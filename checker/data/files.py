@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from checker.store import check_vocab
-from jaxgrid import language
+from jaxgrid import sentences
 from jaxgrid.io import atomic_write, read_json, write_json
 from jaxgrid.rundir import sha256_bytes, sha256_file
 
@@ -30,7 +30,7 @@ class CheckerDataset:
         windows: uint8 ``(N, n, V, V, 3)``, oldest frame first.
         tokens: int32 ``(N, L)`` constraint token ids.
         labels: uint8 ``(N,)``, 1 = violation within the lookahead (see the module docs).
-        template_id: int32 ``(N,)``, ``jaxgrid.language.TEMPLATES`` index.
+        template_id: int32 ``(N,)``, ``jaxgrid.sentences.TEMPLATES`` index.
         constraint_type: int32 ``(N,)``, paper type 1-5.
         scenario: str ``(N,)``, the env id each row came from.
         extras: per-row arrays of full-episode datasets (:data:`EPISODE_FIELDS`), else empty.
@@ -135,8 +135,8 @@ class CheckerDataset:
             "format_version": FORMAT_VERSION,
             "npz_sha256": sha256_bytes(buf.getvalue()),
             **self.meta,
-            "vocab": list(language.VOCAB),
-            "max_len": language.MAX_LEN,
+            "vocab": list(sentences.PAPER.vocab),
+            "max_len": sentences.PAPER.max_len,
         }
         write_json(js, meta)
         return npz, js

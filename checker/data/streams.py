@@ -90,7 +90,7 @@ def _record(state, ts, start, violation):
         "violation": violation,
         "tokens": ts.observation["constraint"].astype(jnp.uint8),
         "template_id": c.template_id.astype(jnp.int8),
-        "constraint_type": c.paper_type.astype(jnp.int8),
+        "constraint_type": c.type_id.astype(jnp.int8),
     }
 
 

@@ -10,7 +10,7 @@ import pytest
 from helpers.agents_cases import TINY, fast_jit
 
 from agents.train import make_learner
-from jaxgrid import hazard_language as HL
+from jaxgrid.sentences import HAZARD_ROOMS
 
 SENTENCES = (
     "avoid lava",
@@ -29,7 +29,7 @@ def test_drawn_conjunctions_are_refused_by_name():
 
 def test_the_policy_reads_the_rich_vocabulary():
     learner = make_learner(CONFIG)
-    assert learner.network.vocab_size == HL.vocab_size()
+    assert learner.network.vocab_size == HAZARD_ROOMS.vocab_size
     runner = fast_jit(learner.init)(jax.random.PRNGKey(0))
     env, traj, stats = fast_jit(lambda r: learner.rollout(r, r.key))(runner)
     # Every episode's sentence is a row of the table (-1 would mean an unknown sentence).

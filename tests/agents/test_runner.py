@@ -332,9 +332,9 @@ def test_stages_count_the_walls_an_agent_has_passed_and_what_it_carries():
 
 
 def test_groups_name_the_colours_a_sentence_names():
-    from jaxgrid import language
+    from jaxgrid.sentences import PAPER
 
-    tokens = language.tokenize_batch(["avoid the red door", "no blue door and no lava",
+    tokens = PAPER.tokenize_batch(["avoid the red door", "no blue door and no lava",
                                       "avoid the red door"])  # fmt: skip
     masks = breakdown.groups(tokens, np.array([3, 2, 3]))
     assert masks["colour red"].tolist() == [True, False, True]

@@ -5,14 +5,14 @@ from __future__ import annotations
 import pytest
 
 from benchmarks import hazard_checks
-from jaxgrid import hazard_language as HL
+from jaxgrid import language
 from jaxgrid.hazard import HazardRooms
 
 
 def test_oracle_figures_cover_every_type_and_obey():
     env = HazardRooms(width=9, height=9, max_steps=60)
     figures = hazard_checks.oracle_figures(env, episodes=5, batch=64)
-    assert list(figures) == list(HL.CONSTRAINT_TYPES)
+    assert list(figures) == list(language.CONSTRAINT_TYPES)
     for f in figures.values():
         assert f["episodes"] >= 5
         assert f["success_pct"] == 100.0 and f["violated_pct"] == 0.0

@@ -17,8 +17,10 @@ import checker
 import jaxgrid
 from checker import CheckerDataset, NoisyOracleParams, noisy_oracle_policy
 from checker.data import compute_labels
-from jaxgrid import language
+from jaxgrid import language, sentences
+from jaxgrid import monitor as M
 from jaxgrid.constants import BALL, BOX, COLOR_TO_IDX, DIR_TO_VEC, DOOR, KEY, LAVA, LOCKED
+from jaxgrid.sentences import PAPER
 from jaxgrid.wrappers import AutoReset
 
 # ----------------------------------------------------------------------------------- labels
@@ -91,11 +93,11 @@ def test_collect_balanced(env):
     )  # fmt: skip
     assert len(ds) == 40 and ds.labels.sum() == 20
     assert ds.windows.shape == (40, 4, 5, 5, 3) and ds.windows.dtype == np.uint8
-    assert ds.tokens.shape == (40, language.MAX_LEN) and ds.tokens.dtype == np.int32
+    assert ds.tokens.shape == (40, PAPER.max_len) and ds.tokens.dtype == np.int32
     assert 0 < ds.meta["natural_positive_rate"] < 0.5
     assert ds.meta["num_positive"] == 20 and ds.meta["split"] == "train"
     for tok, tid in zip(ds.tokens, ds.template_id, strict=True):  # tokens and template agree
-        assert language.parse(language.detokenize(tok)).template_id == tid
+        assert PAPER.find(language.detokenize(tok)).template_id == tid
     assert set(ds.scenario) == {"TwoRooms"}
 
 
@@ -212,7 +214,7 @@ def test_colour_counterfactuals_relabel_door_positives(toy):
     train = train.subset(np.arange(len(train)))
     train.meta["split"] = "train"
     out = checker.with_colour_counterfactuals(train, per_positive=1, seed=3)
-    lava_free = np.array([not t.has_lava for t in language.TEMPLATES])
+    lava_free = np.array([not t.has_lava for t in sentences.TEMPLATES])
     door_pos = int(np.sum((train.labels > 0) & lava_free[train.template_id]))
     assert door_pos > 0 and len(out) == len(train) + door_pos
     assert out.meta["counterfactual_negatives"] == door_pos
@@ -232,10 +234,11 @@ def test_colour_counterfactuals_relabel_door_positives(toy):
         if n == 0:
             continue
         window = np.frombuffer(w, np.uint8).reshape(train.windows.shape[1:])
-        c = language.parse(language.detokenize(np.frombuffer(t, np.int32)))
+        sentence = language.detokenize(np.frombuffer(t, np.int32))
+        colour = language.parse(sentence).clauses[0].target.colour
         assert lab == 0 and w in positive_windows
-        assert c.colour != colour_of[int(window[-1, 2, 3, 1])]
-        assert not language.is_heldout(c.template_id, c.colour)
+        assert colour != colour_of[int(window[-1, 2, 3, 1])]
+        assert not sentences.is_heldout(PAPER.find(sentence).template_id, colour)
     bad = train.subset(np.arange(len(train)))
     bad.meta["lookahead"] = 2
     with pytest.raises(ValueError, match="lookahead"):
@@ -315,7 +318,7 @@ def test_blocked_counterfactual_windows_precede_no_violation(env_id):
     n, v = len(states.agent_pos), env.view_size
     images = np.asarray(jax.jit(jax.vmap(env.observe), compiler_options=CHEAP)(states)["image"])
     ds = CheckerDataset(
-        windows=images[:, None], tokens=np.zeros((n, language.MAX_LEN), np.int32),
+        windows=images[:, None], tokens=np.zeros((n, PAPER.max_len), np.int32),
         labels=np.ones(n, np.uint8), template_id=np.zeros(n, np.int32),
         constraint_type=np.ones(n, np.int32), scenario=np.array([env_id] * n),
         meta={"lookahead": 1, "final_windows": False},
@@ -357,14 +360,14 @@ def test_lava_sentence_counterfactuals_only_where_the_door_is_ahead():
     v = env.view_size
     images = np.asarray(jax.jit(jax.vmap(env.observe), compiler_options=CHEAP)(states)["image"])
     front = images[:, v // 2, v - 2]
-    lava_sentence = np.asarray(c.forbids_lava)
+    lava_sentence = np.asarray(M.mentions(states.extras.monitor.spec, LAVA))
     door_ahead = lava_sentence & (front[:, 0] == DOOR) & (front[:, 1] == np.asarray(c.door_colour))
     lava_ahead = lava_sentence & (front[:, 0] == LAVA)
     assert door_ahead.sum() >= 2 and lava_ahead.sum() >= 2, "rollout should violate both ways"
     n = len(images)
     ds = CheckerDataset(
         windows=images[:, None], tokens=np.asarray(c.tokens), labels=np.ones(n, np.uint8),
-        template_id=np.asarray(c.template_id), constraint_type=np.asarray(c.paper_type),
+        template_id=np.asarray(c.template_id), constraint_type=np.asarray(c.type_id),
         scenario=np.array(["lava"] * n), extras={"origin": np.arange(n)},
         meta={"lookahead": 1, "final_windows": False, "split": "train"},
     )  # fmt: skip
@@ -374,12 +377,14 @@ def test_lava_sentence_counterfactuals_only_where_the_door_is_ahead():
     assert set(src[lava_sentence[src]]) == set(np.flatnonzero(door_ahead))
     # Each copy's sentence names another colour; from its state with that colour forbidden
     # (lava still forbidden), every action is safe.
-    colours = [language.parse(language.detokenize(t)) for t in out.tokens[new]]
+    colours = [language.parse(language.detokenize(t)).clauses[0].target for t in out.tokens[new]]
     recoloured = jnp.asarray([COLOR_TO_IDX[p.colour] for p in colours], jnp.int32)
     assert np.all(np.asarray(recoloured) != np.asarray(c.door_colour)[src])
     moved = jax.tree.map(lambda a: a[src], states)
+    spec = M.encode_batch(language.parse(language.detokenize(t)) for t in out.tokens[new])
     moved = moved.replace(extras=moved.extras.replace(
-        constraint=moved.extras.constraint.replace(door_colour=recoloured)))  # fmt: skip
+        constraint=moved.extras.constraint.replace(door_colour=recoloured),
+        monitor=jax.vmap(M.start)(spec, moved.grid)))  # fmt: skip
     every = jax.jit(jax.vmap(jax.vmap(env.step, (None, 0)), (0, None)), compiler_options=CHEAP)
     _, ts = every(moved, jnp.arange(7, dtype=jnp.int32))
     assert not np.asarray(ts.info["violation"]).any()

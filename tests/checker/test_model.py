@@ -12,7 +12,7 @@ from helpers.xla import CHEAP
 
 from checker import Checker, CheckerConfig
 from checker.model import candidate_logits, init_params
-from jaxgrid.language import sentence_table
+from jaxgrid.sentences import PAPER
 
 # ------------------------------------------------------------------------------------ model
 
@@ -24,7 +24,7 @@ def test_model_shapes_jit_and_decomposition():
     m = Checker(cfg)
     b = 6
     w = jax.random.randint(jax.random.PRNGKey(1), (b, cfg.window, 5, 5, 3), 0, 6).astype(jnp.uint8)
-    toks = jnp.asarray(sentence_table()[:b])
+    toks = jnp.asarray(PAPER.tokens()[:b])
     # Eager Flax RNNs compile op by op: jit instead.
     apply = jax.jit(m.apply, static_argnames="method", compiler_options=CHEAP)
     logits = apply(params, w, toks)

@@ -12,8 +12,7 @@ from helpers.xla import CHEAP
 import checker
 from checker import TrainedChecker, init_buffer, push, violation_prob
 from checker.reward import sentence_codes
-from jaxgrid import language
-from jaxgrid.language import sentence_table
+from jaxgrid.sentences import PAPER
 
 # ------------------------------------------------------------------------------ ring buffer
 
@@ -57,7 +56,7 @@ def test_violation_prob_table_path_matches_direct():
     # Initialised under jit: eager Flax initialisation compiles op by op.
     new_checker = jax.jit(checker.model.new_checker, static_argnums=0, compiler_options=CHEAP)
     tc = new_checker(TINY, jax.random.PRNGKey(2))
-    table = sentence_table()
+    table = PAPER.tokens()
     n = table.shape[0] + 30  # larger than the table: the lookup path
     rng = np.random.default_rng(0)
     toks = jnp.asarray(table[rng.integers(0, len(table), n)])
@@ -67,6 +66,6 @@ def test_violation_prob_table_path_matches_direct():
     assert p.shape == (n,) and p.dtype == jnp.float32
     np.testing.assert_allclose(np.asarray(p), np.asarray(direct), rtol=1e-5, atol=1e-6)
     # A row that is no sentence of the grammar gets NaN, loudly; the others are unaffected.
-    odd = toks.at[0].set(jnp.arange(1, language.MAX_LEN + 1) % language.vocab_size())
+    odd = toks.at[0].set(jnp.arange(1, PAPER.max_len + 1) % PAPER.vocab_size)
     codes = np.asarray(jax.jit(sentence_codes, compiler_options=CHEAP)(tc, odd))
     assert np.isnan(codes[0]).all() and np.isfinite(codes[1:]).all()

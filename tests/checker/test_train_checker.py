@@ -18,7 +18,7 @@ from checker.train import (
     train_checker,
     train_memory_checker,
 )
-from jaxgrid import language
+from jaxgrid import language, sentences
 
 # --------------------------------------------------------------------------------- training
 
@@ -62,9 +62,9 @@ def test_lava_counterfactuals_recolour_door_and_lava_positives(toy):
     """``lava_counterfactuals`` adds a recoloured negative per door-and-lava positive facing
     the named door; without it such positives get none."""
     train = toy[0].subset(np.arange(len(toy[0])))
-    said = [language.parse(language.detokenize(t)).colour for t in train.tokens]
+    said = [language.parse(language.detokenize(t)).clauses[0].target.colour for t in train.tokens]
     train.template_id = 7 + 4 * train.template_id  # the same door clause, and "stay away from lava"
-    train.tokens = np.stack([language.tokenize(language.render(int(t), c))
+    train.tokens = np.stack([sentences.PAPER.tokenize(sentences.render(int(t), c))
                              for t, c in zip(train.template_id, said, strict=True)])  # fmt: skip
     base = dict(window=TINY.window, epochs=1, batch_size=64, test_fraction=0.0, val_fraction=0.0,
                 distractors=0)  # fmt: skip

@@ -19,7 +19,7 @@ from checker.train import MemoryTrainConfig
 from experiments import hazard_rooms, memory_phase, phases, pipeline, scheduling, two_rooms
 from experiments.pipeline import preset
 from experiments.report import CHECKER_METRICS
-from jaxgrid import hazard_language as HL
+from jaxgrid import language
 from jaxgrid.io import write_json
 
 MEMORY_FLAGS = {f"--memory-{n}" for n in ("streams", "steps", "updates", "batch-streams", "lr",
@@ -156,7 +156,7 @@ def _fake_streams(env, key, n, t, guided=0.0):
     rng = np.random.default_rng(int(jax.random.randint(key, (), 0, 2**31 - 1)))
     starts = np.zeros((n, t), bool)
     starts[:, ::8] = True
-    tokens = np.zeros((n, t, HL.MAX_LEN), np.int32)
+    tokens = np.zeros((n, t, language.MAX_LEN), np.int32)
     tokens[..., :2] = 1 + rng.integers(0, 5, (n, t, 1))
     return {
         "frames": rng.integers(0, 6, (n, t, 7, 7, 3)).astype(np.uint8),
@@ -165,7 +165,7 @@ def _fake_streams(env, key, n, t, guided=0.0):
         "label": (rng.random((n, t)) < 0.2).astype(np.int32),
         "next_cost": (rng.random((n, t)) < 0.3).astype(np.float32),
         "cost": np.zeros((n, t), np.float32), "violation": np.zeros((n, t), np.int32),
-        "ctype": rng.integers(0, len(HL.CONSTRAINT_TYPES), (n, t)).astype(np.int32),
+        "ctype": rng.integers(0, len(language.CONSTRAINT_TYPES), (n, t)).astype(np.int32),
         "template": np.zeros((n, t), np.int32), "valid": np.ones((n, t), bool),
     }  # fmt: skip
 

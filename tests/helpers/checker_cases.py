@@ -17,7 +17,7 @@ from checker.data import collect_streams
 from checker.memory_model import MemoryCheckerConfig
 from checker.train import CheckerTrainConfig, train_checker
 from helpers.xla import CHEAP
-from jaxgrid import language
+from jaxgrid import sentences
 from jaxgrid.constants import BLUE, DOOR, RED
 from jaxgrid.wrappers import AutoReset
 
@@ -115,7 +115,10 @@ def toy_split() -> tuple[CheckerDataset, CheckerDataset]:
     said = rng.choice(["red", "blue"], n)
     template = rng.integers(0, 7, n)
     tokens = np.stack(
-        [language.tokenize(language.render(int(t), c)) for t, c in zip(template, said, strict=True)]
+        [
+            sentences.PAPER.tokenize(sentences.render(int(t), c))
+            for t, c in zip(template, said, strict=True)
+        ]
     )
     labels = has_door & (door_colour == np.where(said == "red", RED, BLUE))
     ds = CheckerDataset(

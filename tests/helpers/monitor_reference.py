@@ -1,15 +1,22 @@
-"""A plain-Python monitor of hazard-language constraints, written from the rules in prose.
+"""References the jitted monitor is compared against, written from the rules in prose.
 
-It reads a parsed :class:`~jaxgrid.hazard_language.HazardConstraint` (never the numeric
-encoding the jitted monitor uses) and a grid as numpy, and judges one step at a time with
-Python loops, so the two implementations share nothing but the parser.
+:class:`ReferenceMonitor` is a plain-Python monitor of language constraints: it reads a parsed
+:class:`~jaxgrid.language.Constraint` (never the numeric encoding the jitted monitor uses) and
+a grid as numpy, and judges one step at a time with Python loops, so the two implementations
+share nothing but the parser. :func:`paper_rule_step` is the paper scenarios' rule stated
+directly on the grid and the constraint's door colour: it shares neither the parser nor the
+monitor.
 """
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
-from jaxgrid.constants import COLOR_TO_IDX, OBJECT_TO_IDX
+from jaxgrid import sentences
+from jaxgrid.constants import COLOR_TO_IDX, DOOR, LAVA, OBJECT_TO_IDX
+from jaxgrid.dynamics import get_cell, transition
+from jaxgrid.environment import Environment
 
 
 def _is_target(cell, target) -> bool:
@@ -80,3 +87,41 @@ class ReferenceMonitor:
             if self._trigger(c.trigger, moved, pos_after, carrying_before, carrying_after):
                 self.triggered[i] = True
         return cost, violation
+
+
+def paper_rule_step(env, state, action) -> dict:
+    """One step of a paper scenario by the paper's rule, written without the monitor: the
+    step's ``observation``, ``reward``, ``terminated``, ``truncated``, ``info`` and the agent's
+    ``agent_pos``, and whether it ``teleported``. JAX, vmappable.
+
+    The rule: a violation is the agent entering a door of the forbidden colour (the
+    constraint's ``door_colour``), or lava when the sentence has a lava clause (its template's,
+    from the paper's table); lava not forbidden teleports the agent next to the goal and does
+    not end the episode. It reads neither the monitor nor the parsed sentence.
+    """
+    c = state.extras.constraint
+    has_lava = np.array([t.has_lava for t in sentences.TEMPLATES])
+    forbids_lava = jnp.asarray(has_lava)[c.template_id]
+    new, reward, terminated, truncated = transition(state, action, env.max_steps)
+    entered = jnp.any(new.agent_pos != state.agent_pos)
+    cell = get_cell(new.grid, new.agent_pos)
+    into_lava = entered & (cell[0] == LAVA)
+    door = entered & (cell[0] == DOOR) & (cell[1] == c.door_colour)
+    violation = door | (into_lava & forbids_lava)
+    teleport = into_lava & ~forbids_lava
+    new = new.replace(agent_pos=jnp.where(teleport, state.extras.teleport_pos, new.agent_pos))
+    paper_type = jnp.asarray([t.paper_type for t in sentences.TEMPLATES])[c.template_id]
+    return {
+        "observation": {**Environment.observe(env, new), "constraint": c.tokens},
+        "reward": reward,
+        "terminated": terminated & ~teleport,
+        "truncated": truncated,
+        "info": {
+            "violation": violation,
+            "cost": violation.astype(jnp.float32),
+            "constraint_type": paper_type,
+            "template_id": c.template_id,
+        },
+        "agent_pos": new.agent_pos,
+        "teleported": teleport,
+    }

@@ -19,7 +19,9 @@ from helpers.xla import CHEAP
 
 import jaxgrid
 import jaxgrid.gymnax as jgx
-from jaxgrid import hazard_language, language
+from jaxgrid import language
+from jaxgrid.constrained import language_table
+from jaxgrid.sentences import HAZARD_ROOMS, PAPER
 
 # Forward-heavy random actions, with toggles so that doors open and scenarios see violations.
 ACTION_PROBS = np.array([0.15, 0.15, 0.45, 0.03, 0.03, 0.16, 0.03])
@@ -108,8 +110,9 @@ def test_flat_sizes_are_the_documented_ones():
     sizes = {i: jgx.make(i)[0].observation_space(None).shape for i in ids}
     # 7x7 view: 49 cells x 20 + 4 directions; + 13 tokens x 23 ids; + 32 tokens x 73 ids.
     assert sizes == {ids[0]: (984,), ids[1]: (5 * 5 * 20 + 4 + 13 * 23,), ids[2]: (3320,)}
-    assert (language.MAX_LEN, language.vocab_size()) == (13, 23)
-    assert (hazard_language.MAX_LEN, hazard_language.vocab_size()) == (32, 73)
+    assert (PAPER.max_len, PAPER.vocab_size) == (13, 23)
+    assert (HAZARD_ROOMS.max_len, HAZARD_ROOMS.vocab_size) == (32, 73)
+    assert (language.MAX_LEN, language.vocab_size()) == (32, 73)
 
 
 # --- the same episodes as jaxgrid's own step -------------------------------------------------
@@ -130,7 +133,7 @@ def test_episodes_equal_jaxgrid_raw_steps_with_gymnax_auto_reset(
     n, steps = 16, 120
     env, params = jgx.make(env_id, max_steps=max_steps)
     raw = jaxgrid.make(env_id, max_steps=max_steps)
-    vocab = getattr(raw, "language", language).vocab_size()
+    vocab = language_table(raw).vocab_size
     assert isinstance(env, environment.Environment) and env.name == env_id
     assert isinstance(env.action_space(params), spaces.Discrete)
     assert env.action_space(params).n == env.num_actions == 7

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxgrid import hazard_language as HL
+from jaxgrid import language as L
 from jaxgrid import monitor as M
 from jaxgrid.constants import CLOSED, DOOR, FLOOR, FORWARD, GOAL, KEY, LAVA, WALL
 from jaxgrid.hazard import FLOOR_COLOURS, HazardRooms
@@ -16,7 +16,7 @@ from jaxgrid.oracle import rollout_oracle
 from jaxgrid.scenarios import DOOR_COLOURS
 
 ENV = HazardRooms(width=13, height=13, max_steps=150)
-TYPES = HL.CONSTRAINT_TYPES
+TYPES = L.CONSTRAINT_TYPES
 
 
 @pytest.fixture(scope="module")
@@ -88,8 +88,8 @@ def test_constraint_types_are_uniform_and_tokens_say_the_monitored_constraint(re
     share = np.bincount(c.type_id, minlength=len(TYPES)) / len(c.type_id)
     assert np.all(np.abs(share - 1 / len(TYPES)) < 0.05), share
     for e in range(0, len(c.type_id), 3):
-        sentence = HL.detokenize(ts.observation["constraint"][e])
-        parsed = HL.parse(sentence)
+        sentence = L.detokenize(ts.observation["constraint"][e])
+        parsed = L.parse(sentence)
         assert TYPES[c.type_id[e]] == parsed.type, sentence
         want = M.encode(parsed)
         got = jax.tree.map(lambda a, e=e: a[e], states.extras.monitor.spec)
@@ -102,7 +102,7 @@ def test_the_split_keeps_heldout_phrases_out_of_training():
     held = HazardRooms(width=13, height=13, max_steps=150, split="heldout").constraint_table()
     rows = lambda t: {tuple(r) for r in t["tokens"]}  # noqa: E731
     assert rows(train).isdisjoint(rows(held))
-    assert set(held["type_id"]) == set(range(len(HL.CLAUSE_TYPES)))
+    assert set(held["type_id"]) == set(range(len(L.CLAUSE_TYPES)))
 
 
 def test_lava_costs_but_does_not_kill():
@@ -126,7 +126,7 @@ def test_fixed_sentences_are_the_only_constraints():
     )
     env = HazardRooms(width=13, height=13, max_steps=150, sentences=sentences)
     _, ts = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), 64))
-    seen = {HL.detokenize(t) for t in np.asarray(ts.observation["constraint"])}
+    seen = {L.detokenize(t) for t in np.asarray(ts.observation["constraint"])}
     assert seen == set(sentences)
 
 

@@ -13,11 +13,11 @@ import pytest
 
 import jaxgrid
 from jaxgrid import hazard as HZ
-from jaxgrid import hazard_language as HL
 from jaxgrid import language as L
 from jaxgrid import monitor as M
+from jaxgrid import parsing
 
-LAVA = HL.Target("lava")
+LAVA = L.Target("lava")
 BUDGET = r"a budget counts 1 to 10 times"
 DISTANCE = r"a distance is 1 to 3 cells"
 
@@ -50,27 +50,27 @@ def test_a_number_a_clause_cannot_take_is_refused_with_its_sign_and_range(
 ):
     message = rf"number {re.escape(repr(numeral))} at position \d+ in .* {why}.*: {allowed}"
     with pytest.raises(ValueError, match=message):
-        HL.parse(sentence)
+        L.parse(sentence)
     with pytest.raises(ValueError, match=message):
-        HL.tokenize(sentence)
+        L.tokenize(sentence)
 
 
 @pytest.mark.parametrize(
     "sentence, clause",
     [
-        ("do not step on lava more than 3 times", HL.Clause("budget", LAVA, count=3)),
-        ("do not step on lava more than three times", HL.Clause("budget", LAVA, count=3)),
-        ("do not step on lava more than 10 times", HL.Clause("budget", LAVA, count=10)),
-        ("do not step on lava more than ten times", HL.Clause("budget", LAVA, count=10)),
-        ("step on lava at most 1 time", HL.Clause("budget", LAVA, count=1)),
-        ("stay 3 cells away from lava.", HL.Clause("proximity", LAVA, distance=3)),
-        ("stay one cell away from lava", HL.Clause("proximity", LAVA, distance=1)),
+        ("do not step on lava more than 3 times", L.Clause("budget", LAVA, count=3)),
+        ("do not step on lava more than three times", L.Clause("budget", LAVA, count=3)),
+        ("do not step on lava more than 10 times", L.Clause("budget", LAVA, count=10)),
+        ("do not step on lava more than ten times", L.Clause("budget", LAVA, count=10)),
+        ("step on lava at most 1 time", L.Clause("budget", LAVA, count=1)),
+        ("stay 3 cells away from lava.", L.Clause("proximity", LAVA, distance=3)),
+        ("stay one cell away from lava", L.Clause("proximity", LAVA, distance=1)),
         # A hyphen between a number and a word is a separator, not a sign.
-        ("do not step on lava more than 3-times", HL.Clause("budget", LAVA, count=3)),
+        ("do not step on lava more than 3-times", L.Clause("budget", LAVA, count=3)),
     ],
 )
 def test_numbers_in_range_still_parse_as_words_and_digits(sentence, clause):
-    assert HL.parse(sentence).clauses == (clause,)
+    assert L.parse(sentence).clauses == (clause,)
 
 
 def test_numerals_stay_whole_words_with_their_sign():
@@ -80,12 +80,12 @@ def test_numerals_stay_whole_words_with_their_sign():
     assert L.normalize("do-not-use the red door, 3-times 1st") == [
         "do", "not", "use", "the", "red", "door", "3", "times", "1st",
     ]  # fmt: skip
-    assert HL.numeral_value("-1") == -1 and HL.numeral_value("1.5") == 1.5
-    assert HL.numeral_value("twenty") == 20 and HL.numeral_value("lava") is None
+    assert parsing.numeral_value("-1") == -1 and parsing.numeral_value("1.5") == 1.5
+    assert parsing.numeral_value("twenty") == 20 and parsing.numeral_value("lava") is None
 
 
-def test_the_papers_language_names_a_signed_number_as_an_unknown_word():
-    with pytest.raises(ValueError, match=r"unknown word '-1' at position 7"):
+def test_a_signed_number_where_no_number_goes_is_named_by_position():
+    with pytest.raises(ValueError, match=r"unexpected word '-1' at position 7"):
         L.parse("do not use the red door -1")
 
 
@@ -94,13 +94,13 @@ def test_the_monitor_refuses_a_distance_or_budget_it_cannot_represent():
     grid = np.zeros((9, 9, 3), np.uint8)
     grid[..., 0] = 1
     grid[4, 4, 0] = 9  # lava
-    zone, _ = M.zone_masks(jnp.asarray(grid), M.encode(HL.Clause("proximity", LAVA, distance=3)))
+    zone, _ = M.zone_masks(jnp.asarray(grid), M.encode(L.Clause("proximity", LAVA, distance=3)))
     xs, ys = np.meshgrid(np.arange(9), np.arange(9), indexing="ij")
     np.testing.assert_array_equal(np.asarray(zone[0]), np.abs(xs - 4) + np.abs(ys - 4) <= 2)
     with pytest.raises(ValueError, match=r"distance must be an int in 0\.\.3, got 4"):
-        M.encode(HL.Clause("proximity", LAVA, distance=HL.MAX_DISTANCE + 1))
+        M.encode(L.Clause("proximity", LAVA, distance=L.MAX_DISTANCE + 1))
     with pytest.raises(ValueError, match=r"count must be an int in 0\.\.10, got -1"):
-        M.encode(HL.Clause("budget", LAVA, count=-1))
+        M.encode(L.Clause("budget", LAVA, count=-1))
 
 
 # ------------------------------------------------------------------- setting types

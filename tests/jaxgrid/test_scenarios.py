@@ -12,7 +12,8 @@ from helpers.scenario_resets import SCENARIOS, resets
 from helpers.xla import CHEAP
 
 import jaxgrid
-from jaxgrid import language
+from jaxgrid import language, sentences
+from jaxgrid import monitor as M
 from jaxgrid.constants import (
     CLOSED,
     DIR_TO_VEC,
@@ -59,9 +60,13 @@ def _episode(name: str, i: int):
     return jax.tree.map(lambda a: jnp.asarray(a[i]), resets(name)[0])
 
 
-def _with_constraint(state, **fields):
-    c = state.extras.constraint.replace(**{k: jnp.asarray(v) for k, v in fields.items()})
-    return state.replace(extras=state.extras.replace(constraint=c))
+def _with_sentence(state, sentence: str):
+    """``state`` whose episode says ``sentence``: its monitor judges it, and the oracle plans
+    around its door (tokens and ids stay those drawn: nothing here reads them)."""
+    door = language.parse(sentence).clauses[0].target
+    c = state.extras.constraint.replace(door_colour=jnp.int32(language.COLOURS.index(door.colour)))
+    monitor = M.start(M.encode(language.parse(sentence)), state.grid)
+    return state.replace(extras=state.extras.replace(constraint=c, monitor=monitor))
 
 
 def _walk(env, state, actions):
@@ -91,12 +96,13 @@ def _door_walk_state(colour_forbidden_of: str):
     colours["absent"] = next(
         c for c in (0, 2, 3, 4, 5) if c not in (colours["this"], colours["other"])
     )
+    colour = language.COLOURS[colours[colour_forbidden_of]]
     state = state.replace(
         grid=jnp.asarray(grid),
         agent_pos=jnp.array([dx - 1, dy], jnp.int32),
         agent_dir=jnp.int32(0),
     )
-    state = _with_constraint(state, door_colour=np.int32(colours[colour_forbidden_of]))
+    state = _with_sentence(state, f"do not use the {colour} door")
     return env, state, np.array([dx, dy])
 
 
@@ -151,7 +157,9 @@ def _lava_state(forbids_lava: bool, seed: int):
     else:
         raise AssertionError("lava with no empty neighbour")
     state = state.replace(agent_pos=jnp.asarray(pos, jnp.int32), agent_dir=jnp.int32(d))
-    return env, _with_constraint(state, forbids_lava=forbids_lava), lava
+    door = language.COLOURS[int(state.extras.constraint.door_colour)]
+    sentence = f"avoid the {door} door" + (" and avoid lava" if forbids_lava else "")
+    return env, _with_sentence(state, sentence), lava
 
 
 @pytest.mark.parametrize("seed", [5, 6, 7])
@@ -192,19 +200,26 @@ def test_observation_carries_the_constraint_tokens(name):
     states, ts = resets(name)
     c = states.extras.constraint
     np.testing.assert_array_equal(ts.observation["constraint"], c.tokens)
-    np.testing.assert_array_equal(ts.info["constraint_type"], c.paper_type)
+    np.testing.assert_array_equal(ts.info["constraint_type"], c.type_id)
     np.testing.assert_array_equal(ts.info["template_id"], c.template_id)
     assert not ts.info["violation"].any()
+    spec = states.extras.monitor.spec
+    forbids_lava = np.asarray(M.mentions(spec, LAVA))
     for i in range(1000):
-        meaning = language.parse(language.detokenize(c.tokens[i]))
-        assert meaning.colour_index == c.door_colour[i]
-        assert meaning.forbids_lava == bool(c.forbids_lava[i])
-        assert meaning.template_id == c.template_id[i]
-        assert meaning.paper_type == c.paper_type[i]
+        sentence = language.detokenize(c.tokens[i])
+        door, *lava = language.parse(sentence).clauses
+        assert language.COLOURS.index(door.target.colour) == c.door_colour[i]
+        assert bool(lava) == bool(forbids_lava[i])
+        row = sentences.PAPER.find(sentence)
+        assert (row.template_id, row.type_id) == (c.template_id[i], c.type_id[i])
+        # The monitor judges exactly the sentence the agent reads.
+        want = M.encode(language.parse(sentence))
+        for field in want.__dataclass_fields__:
+            np.testing.assert_array_equal(getattr(spec, field)[i], getattr(want, field))
     if name != "TwoRoomsLava-v0":
-        assert not c.forbids_lava.any()  # lava clauses only where there is lava
+        assert not forbids_lava.any()  # lava clauses only where there is lava
     else:
-        assert 0.5 < c.forbids_lava.mean() < 0.95  # 28 of 35 templates mention lava
+        assert 0.5 < forbids_lava.mean() < 0.95  # 28 of 35 templates mention lava
     # The tokens stay in the observation after a step.
     env = jaxgrid.make(name)
     state = _episode(name, 0)
@@ -308,13 +323,13 @@ def test_split_controls_the_combinations(name, split):
     states, _ = resets(name, split=split)
     c = states.extras.constraint
     has_lava = name == "TwoRoomsLava-v0"
-    allowed = set(language.split_combinations(split, include_lava=has_lava))
+    allowed = set(sentences.split_combinations(split, include_lava=has_lava))
     pairs = zip(c.template_id, c.door_colour, strict=True)
     seen = {(int(t), language.COLOURS[col]) for t, col in pairs}
     assert seen <= allowed
     if split == "train":
         assert len(seen) > 0.8 * len(allowed)  # and it covers the split
-    held = {(t, col) for t, col in allowed if language.is_heldout(t, col)}
+    held = {(t, col) for t, col in allowed if sentences.is_heldout(t, col)}
     assert held == (allowed if split == "heldout" else set())
 
 
