@@ -387,11 +387,12 @@ def relabel(data: dict, label: str) -> dict:
 @dataclasses.dataclass(frozen=True)
 class MemoryTrainConfig:
     """Data and optimisation settings of a memory checker (:func:`train_memory_checker`;
-    ``streams`` and ``steps`` size what :func:`collect_streams` gathers for it)."""
+    ``streams`` and ``steps`` size what :func:`collect_streams` gathers for it); the defaults
+    are the memory checker of the HazardRooms experiment."""
 
-    streams: int = 1024  # streams collected, for training and again for the test
+    streams: int = 512  # streams collected, for training and again for the test
     steps: int = 160  # frames per stream
-    updates: int = 1500  # training updates
+    updates: int = 600  # training updates
     batch_streams: int = 16  # streams per update
     lr: float = 1e-3  # Adam step size
     positive_weight: float = 10.0  # violations are rare: weight their loss

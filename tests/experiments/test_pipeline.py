@@ -55,6 +55,14 @@ def test_preset_is_the_base_plus_its_overrides(experiment, name):
                                "ppo.env_id": scenario.env_id}  # fmt: skip
 
 
+def test_ppo_defaults_are_the_two_rooms_agents():
+    """``PPOConfig(env_id="TwoRooms-v0")`` (docs/training.md) trains the TwoRooms experiment's
+    agents: the default preset's run differs in reward mode and evaluation schedule only."""
+    for mode in REWARD_MODES:
+        run = phases.ppo_config(preset(two_rooms.SCENARIO), mode)
+        assert run == PPOConfig(env_id="TwoRooms-v0", reward_mode=mode, eval_every=run.eval_every)
+
+
 def _flat_changes(changes: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in changes.items():
