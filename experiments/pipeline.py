@@ -26,13 +26,13 @@ phases after it check the checksum of what they were made from), or stops the ru
 status 2 and a message naming the file.
 
 An :class:`ExperimentConfig` holds the experiment's own sizes, the compared agents'
-:class:`~agents.config.PPOConfig` and the checker's :class:`~checker.train.CheckerTrainConfig`;
-each validates its own fields. Sizes come in three presets, overrides of :data:`BASE`:
-``--quick`` (smoke test, minutes), the default (meaningful results in at most about 30
-minutes on a 2-core CPU) and ``--paper`` (1e7 steps, 10 seeds). Every scenario runs the same
-:class:`~agents.config.PPOConfig`: only the env id and the step budgets differ. The command
-line is generated
-from the three dataclasses (:mod:`checker.cli`); ``--help`` lists every flag and its default.
+:class:`~agents.config.PPOConfig` and the checker's :class:`~checker.train.CheckerTrainConfig`
+(or :class:`~checker.memory.MemoryTrainConfig`); each validates its own fields, and their
+defaults are the experiments' settings. An experiment is a row of
+:data:`experiments.presets.EXPERIMENTS`, which names what it changes; the presets
+(``--quick``, the default, ``--paper``) are :data:`experiments.presets.PRESETS`, and
+:func:`preset` makes the configuration of a row in a preset. The command line is generated
+from the dataclasses (:mod:`checker.cli`); ``--help`` lists every flag and its default.
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ from checker import cli
 from checker.memory import MemoryTrainConfig
 from checker.train import CheckerTrainConfig
 from experiments import assembly, memory_phase, phases, scheduling
+from experiments.presets import PRESETS, Experiment
 from jaxgrid import rundir
 
 CHECKER_KINDS = ("window", "memory")
@@ -79,7 +80,7 @@ Modes = Annotated[tuple[str, ...], PrimitiveConstructorSpec(
 class ExperimentConfig:
     """One experiment; every part is validated on construction (``ValueError``)."""
 
-    experiment: str = "two_rooms"  # names the outputs and selects STEP_BUDGETS (no flag)
+    experiment: str = "two_rooms"  # the row of experiments.presets: names the outputs (no flag)
     checker_env_id: str | None = None  # the checker's scenario; None: the agents' (no flag)
     out: str | None = None  # output directory; None: runs/<experiment>/<date-time>
     checker: str | None = None  # a trained checker's directory, reused (skips phases a-c)
@@ -118,7 +119,7 @@ class ExperimentConfig:
     checker_train: CheckerTrainConfig = CheckerTrainConfig()
     # "window": phases a-c above (the paper's); "memory": a recurrent checker trained on
     # streams of the agents' env under a random policy, for constraints that count
-    # (experiments.memory_phase; no flag, the scenario sets it)
+    # (experiments.memory_phase; no flag, the row sets it)
     checker_kind: str = "window"
     # The memory checker's data and training (--memory-*; checker_kind "memory" only)
     memory_checker: MemoryTrainConfig = MemoryTrainConfig()
@@ -230,36 +231,7 @@ class ExperimentConfig:
         return self.ppo.seed
 
 
-BASE = ExperimentConfig()  # the default preset, for TwoRooms
-# Presets: overrides of BASE (a dict overrides inside a nested config), then the experiment's
-# own step budgets in STEP_BUDGETS (first "all", then the preset's). Every scenario runs the
-# same PPOConfig; only the env id and the step budgets differ (docs/decisions.md).
-PRESETS: dict[str, dict] = {
-    # Meaningful results within about 30 minutes on a 2-core CPU.
-    "default": {},
-    # --quick: the outputs and their schema, in minutes; results mean nothing.
-    "quick": dict(quick=True, machine_baseline=False, seeds=2, behaviour_steps=8_192,
-                  checker_samples=512, collect_max_steps=256, curve_points=2, final_episodes=32,
-                  checker_train=dict(epochs=3),
-                  memory_checker=dict(streams=16, steps=48, updates=10, batch_streams=8),
-                  ppo=dict(total_timesteps=16_384, num_envs=32, eval_episodes=16)),
-    # --paper: the paper's budget (1e7 steps), 10 seeds, 50 evaluation episodes a checkpoint.
-    "paper": dict(paper=True, seeds=10, behaviour_steps=1_000_000, curve_points=40,
-                  checker_train=dict(epochs=60),
-                  ppo=dict(total_timesteps=10_000_000, num_envs=256)),
-}  # fmt: skip
-# TwoRooms-Lava and ThreeRooms-Key take longer to solve at all (lava's detour; key, locked
-# door and a second wall within 150 steps): 3M steps for Lava, with a behaviour agent that
-# meets doors and lava more often; 5M for ThreeRooms-Key, where at 3M one seed in three or
-# four never passed the locked door and at 5M none of 10 failed (docs/decisions.md).
-STEP_BUDGETS: dict[str, dict[str, dict]] = {
-    "two_rooms_lava": {
-        "default": dict(behaviour_steps=600_000, ppo=dict(total_timesteps=3_000_000)),
-    },
-    "three_rooms_key": {
-        "default": dict(ppo=dict(total_timesteps=5_000_000)),
-    },
-}
+BASE = ExperimentConfig()  # the default preset, before a row's env ids and changes
 
 
 def override(cfg, changes: dict):
@@ -268,17 +240,13 @@ def override(cfg, changes: dict):
     return dataclasses.replace(cfg, **{**changes, **nested})
 
 
-def scenario(experiment: str, env_id: str, checker_env_id: str | None = None):
-    """:data:`BASE` for ``experiment`` on ``env_id`` (its checker's on ``checker_env_id``),
-    before any preset: :func:`preset` makes the configurations that run."""
-    return override(BASE, dict(experiment=experiment, checker_env_id=checker_env_id,
-                               ppo=dict(env_id=env_id)))  # fmt: skip
-
-
-def preset(cfg: ExperimentConfig, name: str = "default") -> ExperimentConfig:
-    """``cfg`` (a :func:`scenario`) with preset ``name`` and its experiment's changes."""
-    own = STEP_BUDGETS.get(cfg.experiment, {})
-    for changes in (PRESETS[name], own.get("all", {}), own.get(name, {})):
+def preset(row: Experiment, name: str = "default") -> ExperimentConfig:
+    """The configuration of experiment ``row`` in preset ``name``: :data:`BASE` on the row's
+    env ids and checker kind, then the row's changes, the preset's and the row's budget."""
+    own = dict(experiment=row.name, checker_env_id=row.checker_env_id,
+               checker_kind=row.checker_kind, ppo=dict(env_id=row.env_id))  # fmt: skip
+    cfg = override(BASE, own)
+    for changes in (row.changes, PRESETS[name], row.budgets.get(name, {})):
         cfg = override(cfg, changes)
     return cfg
 
@@ -369,36 +337,43 @@ FLAGS: cli.Names = {
     MemoryTrainConfig: {**{f.name: f"memory_{f.name}"
                            for f in dataclasses.fields(MemoryTrainConfig)}, "seed": None},
 }  # fmt: skip
-PHASES = {"window": "behaviour agent, checker data, checker",
-          "memory": "random-policy streams, memory checker"}  # fmt: skip
-# Flags that mean nothing for one kind of checker, hidden from its experiments' command line.
-UNUSED_FLAGS: dict[str, cli.Names] = {
-    "window": {MemoryTrainConfig: {f.name: None for f in dataclasses.fields(MemoryTrainConfig)},
-               ExperimentConfig: {"shield_guided": None, "checker_actions": None}},
-    "memory": {
-        ExperimentConfig: {"behaviour_steps": None, "checker_samples": None,
-                           "collect_max_steps": None, "collect_epsilon": None},
-        CheckerTrainConfig: {f.name: None for f in dataclasses.fields(CheckerTrainConfig)},
-    },
-}  # fmt: skip
 
 
-def parse_args(argv, scenario_cfg: ExperimentConfig, hide: cli.Names | None = None):
-    """The configuration of ``argv``: the preset ``--quick``/``--paper`` names (default: the
-    default) of ``scenario_cfg``, then every flag given. ``hide`` removes more flags."""
+def hidden_flags(row: Experiment) -> cli.Names:
+    """``row.hidden`` as :func:`checker.cli.parse` names: a field of :class:`ExperimentConfig`
+    (a nested part: every field of it), or ``"part.field"``."""
+    parts = {f.name: f.type for f in dataclasses.fields(ExperimentConfig)}
+    nested = {"ppo": PPOConfig, "checker_train": CheckerTrainConfig,
+              "memory_checker": MemoryTrainConfig}  # fmt: skip
+    names: dict = {}
+    for item in row.hidden:
+        part, _, field = item.partition(".")
+        if part not in parts:
+            raise ValueError(f"Experiment {row.name}.hidden: {item!r} names no setting")
+        if part in nested:
+            cls = nested[part]
+            fields = [field] if field else [f.name for f in dataclasses.fields(cls)]
+            names.setdefault(cls, {}).update(dict.fromkeys(fields))
+        else:
+            names.setdefault(ExperimentConfig, {})[part] = None
+    return names
+
+
+def parse_args(argv, row: Experiment):
+    """The configuration of ``argv``: experiment ``row`` in the preset ``--quick``/``--paper``
+    name (default: the default), then every flag given; ``row.hidden`` has no flag."""
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     for name in ("quick", "paper"):
         pre.add_argument(f"--{name}", action=argparse.BooleanOptionalAction, default=False)
     chosen, _ = pre.parse_known_args(argv)
     name = "quick" if chosen.quick and not chosen.paper else "paper" if chosen.paper else ""
-    hide = {**UNUSED_FLAGS[scenario_cfg.checker_kind], **(hide or {})}
+    hide = hidden_flags(row)
     names = {cls: {**FLAGS.get(cls, {}), **hide.get(cls, {})} for cls in FLAGS.keys() | hide}
-    exp = scenario_cfg.experiment
     return cli.parse(
-        ExperimentConfig, argv, default=preset(scenario_cfg, name or "default"), names=names,
-        prog=f"python -m experiments.{exp}", description=f"{exp}: the paper's experiment on "
-        f"{scenario_cfg.env_id} ({PHASES[scenario_cfg.checker_kind]}, PPO in every reward "
-        "mode, report). --quick and --paper change the defaults shown here.",
+        ExperimentConfig, argv, default=preset(row, name or "default"), names=names,
+        prog=f"python -m experiments.{row.name}", description=f"{row.name}: the paper's "
+        f"experiment on {row.env_id} ({row.phases}, PPO in every reward mode, report). "
+        "--quick and --paper change the defaults shown here.",
     )  # fmt: skip
 
 
@@ -407,8 +382,9 @@ def default_out(experiment: str) -> str:
     return os.path.join("runs", experiment, stamp)
 
 
-def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
-    """Entry point of the scenario modules; Ctrl-C keeps finished phases for a resume.
+def main(row: Experiment, argv=None) -> dict | None:
+    """Run experiment ``row`` with ``argv`` (default ``sys.argv[1:]``); Ctrl-C keeps finished
+    phases for a resume.
 
     Bad flags exit with status 2 before anything compiles. ``--out`` is locked for the whole
     run (:func:`jaxgrid.rundir.lock`): a second process on it exits with status 2 at once,
@@ -425,7 +401,7 @@ def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
     except rundir.LockHeld as e:
         print(f"error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
-    cfg = parse_args(argv, scenario_cfg)
+    cfg = parse_args(argv, row)
     if cfg.quick:  # a smoke test is all compile time: cheaper compiles (LLVM's optimisations
         # off, XLA:CPU's per-op emitters; float results may differ in the last place). XLA
         # reads the flags when the CPU backend starts.
