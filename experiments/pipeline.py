@@ -327,7 +327,9 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
 # Flags of the nested configs: PPO's are their own names, the checker's training ones
 # --checker-<name>; None: set by the pipeline, no flag.
 FLAGS: cli.Names = {
-    ExperimentConfig: {"experiment": None, "checker_env_id": None, "checker_kind": None},
+    # the nested configs' groups in --help (their flags keep the names below)
+    ExperimentConfig: {"experiment": None, "checker_env_id": None, "checker_kind": None,
+                       "ppo": "PPO", "checker_train": "checker", "memory_checker": "checker"},
     PPOConfig: {"total_timesteps": "steps", "env_id": None, "env_kwargs": None,
                 "reward_mode": None, "eval_every": None},
     CheckerTrainConfig: {**{f.name: f"checker_{f.name}"

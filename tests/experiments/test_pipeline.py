@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 
 import pytest
 from helpers.cli_help import help_entries, squeezed
@@ -15,7 +16,15 @@ from helpers.experiment_runs import check_outputs, quick, refused_before_any_com
 
 from agents.config import REWARD_MODES, PPOConfig
 from checker.train import CheckerTrainConfig
-from experiments import label_timing, phases, pipeline, three_rooms_key, two_rooms, two_rooms_lava
+from experiments import (
+    hazard_rooms,
+    label_timing,
+    phases,
+    pipeline,
+    three_rooms_key,
+    two_rooms,
+    two_rooms_lava,
+)
 from experiments.pipeline import BASE, ExperimentConfig, preset
 from experiments.presets import EXPERIMENTS, PRESETS
 
@@ -163,6 +172,14 @@ def _help(capsys, argv, scenario, **kw) -> str:
         pipeline.parse_args([*argv, "--help"], scenario, **kw)
     assert exc.value.code == 0
     return capsys.readouterr().out
+
+
+def test_help_groups_the_flags_experiment_ppo_checker(capsys):
+    """The experiment's own flags, then PPO's, then the checker's, each under its title."""
+    for module in (two_rooms, hazard_rooms):
+        text = _help(capsys, [], module.SCENARIO)
+        titles = re.findall(r"^\W*((?:PPO |checker )?options)\W*$", text, re.M)
+        assert titles == ["options", "PPO options", "checker options"], titles
 
 
 def test_every_flag_shows_its_default_and_presets_change_them(capsys):
