@@ -3,6 +3,8 @@
 * :mod:`agents.config`: :class:`~agents.config.PPOConfig`, the frozen settings of a run;
 * :mod:`agents.networks`: the actor-critic conditioned on the view and the sentence;
 * :mod:`agents.rollout`: one env step with policy, checker, reward shaping and bootstrap;
+* :mod:`agents.checker_carry`: the checker's per-env carry (any checker kind) that the
+  rollout and the shield start and step;
 * :mod:`agents.losses`: :func:`~agents.losses.gae`, :func:`~agents.losses.ppo_loss`;
 * :mod:`agents.train`: ``make_train(config, checker) -> train(key)`` and the
   :class:`~agents.train.Learner` whose pieces it composes;

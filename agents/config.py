@@ -296,7 +296,7 @@ def check_checker(config: PPOConfig, checker, env) -> None:
         raise ValueError(
             f"the checker reads a vocabulary of {checker.config.vocab_size} token ids and "
             f"{config.env_id} speaks one of {words}: train the checker on this env's language "
-            "(a HazardRooms env needs a checker.memory checker)"
+            "(a HazardRooms env needs a memory checker: python -m checker --kind memory)"
         )
 
 

@@ -1,11 +1,11 @@
 """One step of the training rollout: policy, env, checker, reward shaping, bootstrap, stats.
 
 :func:`env_step` advances ``num_envs`` auto-resetting environments by one step and returns
-the :class:`Transition` PPO learns from. Each step also carries the checker's memory per env: for
-the window checker a ring buffer of its embeddings of the last ``window - 1`` frames, so that
-it embeds each frame once (not ``window`` times) and scores the window ending at the new
-observation; for the memory checker (:mod:`checker.memory`) its GRU state, advanced by
-one frame per step.
+the :class:`Transition` PPO learns from. Each step also carries the checker's memory per env
+(:class:`checker.protocol.CheckerProtocol`'s carry, :mod:`agents.checker_carry`), advanced by
+one frame per step: for the window checker its embeddings of the last ``window - 1`` frames,
+so that it embeds each frame once (not ``window`` times), for the memory checker its GRU
+state.
 Everything here is a pure function of arrays, the network's apply function and the frozen
 checker; :mod:`agents.train` scans it.
 """
@@ -20,9 +20,10 @@ import jax
 import jax.numpy as jnp
 
 from agents import shield as shield_mod
+from agents.checker_carry import embed
 from agents.config import PPOConfig
 from agents.evaluation import violation_of
-from checker.memory import NO_ACTION
+from checker.protocol import CheckerProtocol
 from jaxgrid import language
 from jaxgrid.constants import EMPTY, FORWARD
 from jaxgrid.wrappers import BatchedAutoReset, masked_map
@@ -34,9 +35,9 @@ class EnvCarry(struct.PyTreeNode):
     state: Any
     obs: dict
     sentence: jax.Array  # int32: row of the sentence table
-    # float32: the checker's memory of the episode up to the current observation, the
-    # embeddings of the last n - 1 frames (E, n - 1, D) of a window checker, the GRU state
-    # (E, H) of a memory checker (checker.memory); a placeholder without a checker
+    # float32: the checker's carry of the episode up to the current observation (its
+    # stream_start / stream_step: the embeddings of the last n - 1 frames (E, n - 1, D) of a
+    # window checker, the GRU state (E, H) of a memory checker); a placeholder without one
     frames: jax.Array
     # bool (E, W*H*2): (cell, carrying) pairs seen this episode, then with novelty_changes
     # (E, W*H) more: the cells changed this episode; (E, 1) without the novelty bonus
@@ -72,26 +73,6 @@ def sentence_rows(obs: dict, table: jax.Array) -> jax.Array:
     """int32 (E,): each env's row of the sentence table (0 for envs without a constraint)."""
     rows = language.sentence_index(obs["constraint"], table) if "constraint" in obs else 0
     return rows * jnp.ones_like(obs["direction"])
-
-
-def embed(checker, images: jax.Array, actions: jax.Array | None = None) -> jax.Array:
-    """The checker's per-frame embeddings (..., D) of ``images`` reached by ``actions`` (...)
-    (None: episodes' first frames, :data:`~checker.memory.NO_ACTION`); a zero placeholder
-    (..., 1) without a checker."""
-    if checker is None:
-        return jnp.zeros(images.shape[:-3] + (1,), jnp.float32)
-    if actions is None:
-        actions = jnp.full(images.shape[:-3], NO_ACTION, jnp.int32)
-    return checker.embed_states(images, actions)
-
-
-def start_memory(checker, emb: jax.Array, lang: jax.Array | None) -> jax.Array:
-    """The checker's memory of fresh episodes whose first frames embed to ``emb``: the last
-    frames' embeddings (window checker) or its GRU state (memory checker). Without a checker
-    a (E, 1, 1) placeholder: orbax cannot checkpoint zero-size arrays."""
-    if checker is None:
-        return jnp.zeros(emb.shape[:1] + (1, 1), jnp.float32)
-    return checker.stream_start(emb, lang)
 
 
 def _rows(mask: jax.Array, x: jax.Array) -> jax.Array:
@@ -159,7 +140,7 @@ def env_step(
     policy: BoundPolicy,
     table: jax.Array,
     words: int,
-    checker=None,
+    checker: CheckerProtocol | None = None,
     shield=None,
     penalty: jax.Array | float,
     novelty: jax.Array | float,

@@ -4,22 +4,24 @@ For every env and every action, a copy of the environment is stepped (pure JAX, 
 the actions), giving the candidate next observation of each action. A judge scores each
 candidate:
 
-* ``checker``: the trained checker's violation probability for the window that ends at the
-  candidate observation (the last ``window - 1`` frames of the episode, then the candidate;
-  for a memory checker, its memory of the episode advanced by the candidate);
-  an action is blocked where it exceeds ``threshold``. A checker trained on just-before labels
-  (the window checker's) blocks a candidate that leads to a state from which a violation is
-  expected next, keeping the agent out of the states the ``checker`` reward mode penalises;
-  a memory checker trained on the step into each frame (``label="into"``) blocks the
-  candidate step that it expects to violate, the monitor's question.
+* ``checker``: the trained checker's violation probability of the candidate observation read
+  after its carry of the episode (:meth:`checker.protocol.CheckerProtocol.candidate_logits`:
+  for a window checker the window of the last ``window - 1`` frames and the candidate, for a
+  memory checker its memory advanced by the candidate); an action is blocked where it
+  exceeds ``threshold``. A checker of just-before labels (``lookahead`` 1) blocks a candidate
+  that leads to a state from which a violation is expected next, keeping the agent out of
+  the states the ``checker`` reward mode penalises; a memory checker of the step into each
+  frame (``lookahead`` 0) blocks the candidate step that it expects to violate, the
+  monitor's question.
 * ``monitor``: the ground-truth monitor's violation flag of the candidate step (a perfect
   one-step judge, the reference the learned checker is measured against).
 
 Every constraint event is the agent entering a cell, and only ``forward`` moves the agent, so
-a judge of the step itself (the monitor, a memory checker of ``label="into"``) is asked about
-``forward`` alone (:data:`MOVES`; the other actions' risk is 0): seven times fewer candidates,
-and no false alarm can block a turn. A just-before checker is asked about every action,
-since turning can lead to a state from which a violation is expected next.
+the monitor, a judge of the step itself, is asked about ``forward`` alone (:data:`MOVES`; the
+other actions' risk is 0): seven times fewer candidates, and no false alarm can block a turn.
+A checker is asked about its ``shield_actions``: a memory checker of the step into each
+frame about :data:`MOVES`, a window checker or a just-before memory checker about every
+action, since turning can lead to a state from which a violation is expected next.
 
 The policy samples from its distribution restricted to the allowed actions (renormalised);
 where every action is blocked, the least risky one stays allowed. PPO learns from that masked
@@ -35,16 +37,14 @@ import flax.struct as struct
 import jax
 import jax.numpy as jnp
 
+from agents.checker_carry import embed, start_memory
 from agents.evaluation import violation_of
-from checker.memory import NO_ACTION
-from jaxgrid.constants import FORWARD
+from checker.protocol import MOVES, CheckerProtocol
 
 JUDGES = ("checker", "monitor")
 # A blocked action's logit: its probability underflows to 0 and its log-probability stays
 # finite, so entropies and log-ratios never see inf - inf.
 BLOCKED_LOGIT = -1e9
-#: The actions that can move the agent into another cell, the only ones that can violate.
-MOVES = (FORWARD,)
 
 
 def mask_logits(logits: jax.Array, allowed: jax.Array) -> jax.Array:
@@ -78,7 +78,7 @@ class Shield(struct.PyTreeNode):
     judge: str = struct.field(pytree_node=False)
     # A leaf, so that agents swept over it in one program can each have their own.
     threshold: float | jax.Array = 0.5
-    checker: Any = None
+    checker: CheckerProtocol | None = None
     judged: tuple[int, ...] | None = struct.field(pytree_node=False, default=None)
 
     @property
@@ -102,7 +102,7 @@ class Shield(struct.PyTreeNode):
         else:
             images = ts.observation["image"]
             actions = jnp.broadcast_to(jnp.asarray(self.actions, jnp.int32), images.shape[:2])
-            emb = self.checker.embed_states(images, actions)  # (E, J, D)
+            emb = embed(self.checker, images, actions)  # (E, J, D)
             risk = jax.nn.sigmoid(self.checker.candidate_logits(frames, emb, lang))
         if self.judged is None:
             return risk
@@ -117,13 +117,12 @@ class Shield(struct.PyTreeNode):
     # -- episodes played without the learner's carry (evaluation) ---------------------
     def start(self, obs: dict):
         """The judge's memory of fresh episodes whose first observations are ``obs``: the
-        checker's memory (:meth:`~checker.trained.TrainedChecker.stream_start`) and its codes
-        of each sentence."""
+        checker's carry (:func:`agents.checker_carry.start_memory`) and its codes of each
+        sentence."""
         if self.judge == "monitor":
             return ()
         lang = self.checker.encode_language(obs["constraint"])
-        first = jnp.full(obs["image"].shape[:1], NO_ACTION, jnp.int32)
-        return self.checker.stream_start(self.checker.embed_states(obs["image"], first), lang), lang
+        return start_memory(self.checker, embed(self.checker, obs["image"]), lang), lang
 
     def observe(self, memory, obs: dict, actions: jax.Array):
         """The memory after the envs took ``actions`` (E,) and moved on to ``obs`` (same
@@ -131,7 +130,7 @@ class Shield(struct.PyTreeNode):
         if self.judge == "monitor":
             return memory
         frames, lang = memory
-        emb = self.checker.embed_states(obs["image"], actions)
+        emb = embed(self.checker, obs["image"], actions)
         return self.checker.stream_step(frames, emb, lang)[1], lang
 
     def allowed_now(self, memory, states):
@@ -144,8 +143,7 @@ class Shield(struct.PyTreeNode):
 def make_shield(env, judge: str, checker=None, threshold: float = 0.5) -> Shield:
     """A :class:`Shield` for ``env``; the ``checker`` judge needs a trained ``checker``.
 
-    The monitor and a checker of the step into each frame (``label == "into"``) judge
-    :data:`MOVES` only; a just-before checker judges every action.
+    The monitor judges :data:`MOVES` only, a checker its ``shield_actions``.
     """
     if judge not in JUDGES:
         raise ValueError(f"shield judge must be one of {JUDGES}, got {judge!r}")
@@ -153,7 +151,6 @@ def make_shield(env, judge: str, checker=None, threshold: float = 0.5) -> Shield
         raise ValueError("a checker shield needs a trained checker")
     if not 0 < threshold < 1:
         raise ValueError(f"shield threshold must be in (0, 1), got {threshold!r}")
-    steps_only = judge == "monitor" or getattr(checker, "label", "next") == "into"
+    judged = MOVES if judge == "monitor" else checker.shield_actions
     return Shield(env=env, judge=judge, threshold=float(threshold),
-                  checker=checker if judge == "checker" else None,
-                  judged=MOVES if steps_only else None)  # fmt: skip
+                  checker=checker if judge == "checker" else None, judged=judged)  # fmt: skip

@@ -29,7 +29,7 @@ import numpy as np
 import optax
 from jax import lax
 
-from agents import rollout
+from agents import checker_carry, rollout
 from agents.config import SWEEPABLE, PPOConfig, check_checker
 from agents.evaluation import play_episodes, summarise
 from agents.losses import gae, ppo_loss, shuffle
@@ -42,6 +42,7 @@ from agents.networks import (
 )
 from agents.rollout import EnvCarry, Transition
 from agents.shield import make_shield, mask_logits
+from checker.protocol import CheckerProtocol
 from jaxgrid import language
 from jaxgrid.wrappers import BatchedAutoReset
 
@@ -74,7 +75,7 @@ class Learner(struct.PyTreeNode):
     network: ActorCritic = struct.field(pytree_node=False)
     optimizer: Any = struct.field(pytree_node=False)
     has_language: bool = struct.field(pytree_node=False, default=True)
-    checker: Any = None
+    checker: CheckerProtocol | None = None
     shield: Any = None  # agents.shield.Shield in the shield modes
     table: jax.Array = None  # int32 (K, L): the env's sentence table
     # Real tokens of the table's longest sentence. The sentence encoders run this many steps:
@@ -192,8 +193,8 @@ class Learner(struct.PyTreeNode):
         lang = None
         if self.checker is not None:
             lang = self.checker.encode_language(self.table[:, : self.words])[sentence]
-        emb = rollout.embed(self.checker, obs["image"])
-        frames = rollout.start_memory(self.checker, emb, lang)
+        emb = checker_carry.embed(self.checker, obs["image"])
+        frames = checker_carry.start_memory(self.checker, emb, lang)
         zeros = jnp.zeros((c.num_envs,), jnp.float32)
         carry = EnvCarry(
             state=states, obs=obs, sentence=sentence,

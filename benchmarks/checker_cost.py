@@ -20,9 +20,9 @@ from jax import lax
 
 from agents import timing
 from checker import cli
-from checker.model import CheckerConfig
+from checker.model import CheckerConfig, new_checker
 from checker.reward import init_buffer, push, violation_prob
-from checker.trained import load, new_checker
+from checker.store import load
 from jaxgrid.wrappers import AutoReset
 
 

@@ -120,12 +120,11 @@ def make_checker(env, kind: str = "window"):
     """A freshly initialised checker for ``env`` (the speed does not depend on its weights):
     the window checker, or (``kind`` "memory") the recurrent one."""
     if kind == "memory":
-        from checker import memory
+        from checker import memory_model
 
-        config = memory.MemoryCheckerConfig(view_size=env.view_size)
-        return memory.new_memory_checker(config, jax.random.PRNGKey(0))
-    from checker.model import CheckerConfig
-    from checker.trained import new_checker
+        config = memory_model.MemoryCheckerConfig(view_size=env.view_size)
+        return memory_model.new_memory_checker(config, jax.random.PRNGKey(0))
+    from checker.model import CheckerConfig, new_checker
 
     return new_checker(CheckerConfig(view_size=env.view_size), jax.random.PRNGKey(0))
 

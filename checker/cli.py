@@ -33,6 +33,8 @@ from tyro.constructors import (
     StructTypeInfo,
 )
 
+from checker.protocol import LABEL_LOOKAHEADS
+
 T = TypeVar("T")
 Names = Mapping[type, Mapping[str, str | None]]
 
@@ -135,10 +137,33 @@ def parse(
             return tyro.cli(cls, args=argv, prog=prog, description=description,
                             default=MISSING_NONPROP if default is None else default)  # fmt: skip
     except _Invalid as e:
-        prog = prog or os.path.basename(sys.argv[0])
-        print(f"usage: {prog} [-h] [OPTIONS]\nerror: {e}\n(`{prog} --help` lists every flag and "
-              "its default)", file=sys.stderr)  # fmt: skip
-        raise SystemExit(2) from None
+        usage_error(str(e), prog)
+
+
+def usage_error(message: str, prog: str | None = None) -> NoReturn:
+    """Print ``message`` as a usage error of ``prog`` and exit with status 2."""
+    prog = prog or os.path.basename(sys.argv[0])
+    print(f"usage: {prog} [-h] [OPTIONS]\nerror: {message}\n(`{prog} --help` lists every flag "
+          "and its default)", file=sys.stderr)  # fmt: skip
+    raise SystemExit(2) from None
+
+
+def label_flags(argv: Sequence[str], old: str, new: str, prog: str | None = None) -> list[str]:
+    """``argv`` with the memory checker's former label-timing flag ``old next|into`` read as
+    ``new 1|0`` (:data:`checker.protocol.LABEL_LOOKAHEADS`), so that command lines written
+    before it was named ``lookahead`` keep working; another value is a usage error."""
+    out, args = [], list(argv)
+    while args:
+        arg = args.pop(0)
+        if arg != old and not arg.startswith(old + "="):
+            out.append(arg)
+            continue
+        value = arg[len(old) + 1 :] if "=" in arg else (args.pop(0) if args else "")
+        if value not in LABEL_LOOKAHEADS:
+            usage_error(f"{old} must be one of {tuple(LABEL_LOOKAHEADS)} (the former name of "
+                        f"{new}: {LABEL_LOOKAHEADS}), got {value!r}", prog)  # fmt: skip
+        out += [new, str(LABEL_LOOKAHEADS[value])]
+    return out
 
 
 # What a user's mistake raises: shown as one line, exit status 2. ImportError: an optional

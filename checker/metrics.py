@@ -13,7 +13,10 @@
   is paired with the same window under a sentence naming another door colour, a true
   negative by the monitor's definition;
 * :func:`evaluate`: all of it for a :class:`~checker.TrainedChecker` and a dataset, with
-  jitted batched inference.
+  jitted batched inference;
+* the memory checker's, on whole streams: :func:`predict_streams`, and :func:`evaluate_streams`
+  (AUROC overall, per constraint type, on budget violations later than any window can count,
+  :func:`late_violation_mask`, and on counting itself).
 
 Undefined values (AUROC with one class only, precision with no predicted positive, ...) are
 ``None`` so the result stays valid JSON.
@@ -28,14 +31,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from checker.memory_model import MemoryChecker, MemoryCheckerConfig, stream_input_names
+from jaxgrid import hazard_language as HL
+
 __all__ = [
     "auroc",
     "binary_metrics",
     "evaluate",
+    "evaluate_streams",
     "expected_calibration_error",
+    "late_violation_mask",
     "lead_time",
     "per_group",
     "predict",
+    "predict_streams",
     "colour_counterfactual",
 ]
 
@@ -289,3 +298,61 @@ def evaluate(trained, dataset, threshold: float | None = None, batch_size: int =
     if "episode" in dataset.extras:
         out["lead_time"] = lead_time(dataset, probs, thr)
     return out
+
+
+# ------------------------------------------------------------------ the memory checker
+
+
+def predict_streams(params, config: MemoryCheckerConfig, data: dict, batch: int = 64):
+    """Violation probabilities ``(N, T)`` of every frame of ``data``."""
+    model = MemoryChecker(config)
+    apply = jax.jit(lambda p, *x: jax.nn.sigmoid(model.apply(p, *x)))
+    out = []
+    for i in range(0, data["starts"].shape[0], batch):
+        part = (data[k][i : i + batch] for k in stream_input_names(config))
+        out.append(np.asarray(apply(params, *part)))
+    return np.concatenate(out)
+
+
+def late_violation_mask(data: dict, late: int, lookahead: int = 1) -> np.ndarray:
+    """bool ``(N, T)``: frames of the episodes whose first violation comes more than ``late``
+    steps after their first costly event (a budget counted beyond a window of ``late``
+    frames). Streams begin with a reset, so every episode is seen from its start.
+    ``lookahead`` says what ``data["label"]`` marks (:func:`checker.data.relabel`)."""
+    shift = lookahead
+    starts, cost, labels = data["starts"], data["cost"] > 0, data["label"] > 0
+    mask = np.zeros(starts.shape, bool)
+    for e in range(starts.shape[0]):
+        begins = [*np.flatnonzero(starts[e]), starts.shape[1]]
+        for a, b in zip(begins[:-1], begins[1:], strict=False):
+            # frame t's cost is the step into it; a lookahead-1 label is the step out of it
+            # (t + 1): such labels, unlike ``violation``, keep an episode's final step
+            first_cost = np.flatnonzero(cost[e, a:b])
+            first_violation = np.flatnonzero(labels[e, a:b]) + shift
+            if len(first_cost) and len(first_violation):
+                mask[e, a:b] = first_violation[0] - first_cost[0] > late
+    return mask
+
+
+def evaluate_streams(probs, data: dict, late: int = 10, lookahead: int = 1) -> dict:
+    """AUROC of ``probs`` against the labels: overall, per constraint type, on late budget
+    violations (:func:`late_violation_mask`) and on the budget frames whose labelled step
+    costs (``costly_budget``: is this entry one too many?), with the positive counts behind
+    each. ``lookahead`` says what ``data["label"]`` marks (:func:`checker.data.relabel`)."""
+    y, valid = data["label"] > 0, data["valid"]
+    report = {"auroc": auroc(y[valid], probs[valid]), "positives": int(y[valid].sum())}
+    per_type = {}
+    for i, name in enumerate(HL.CONSTRAINT_TYPES):
+        m = valid & (data["ctype"] == i)
+        per_type[name] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
+    report["per_type"] = per_type
+    budget = data["ctype"] == HL.CONSTRAINT_TYPES.index("budget")
+    m = valid & budget & late_violation_mask(data, late, lookahead)
+    report["late_budget"] = {"late": late, "auroc": auroc(y[m], probs[m]),
+                             "positives": int(y[m].sum())}  # fmt: skip
+    # Counting itself: among budget frames whose labelled step costs, which ones exceed the
+    # budget? A checker that does not count cannot rank these (AUROC near 0.5).
+    step_cost = data["next_cost"] if lookahead == 1 else data["cost"]
+    m = valid & budget & (step_cost > 0)
+    report["costly_budget"] = {"auroc": auroc(y[m], probs[m]), "positives": int(y[m].sum())}
+    return report

@@ -1,10 +1,11 @@
-"""The constraint checker network: is the agent about to break the constraint?
+"""The window checker: the network (:class:`Checker`) and a trained one (:class:`TrainedChecker`),
+which answers: is the agent about to break the constraint?
 
 Inputs: a window of the last ``n`` egocentric observations, uint8 ``(B, n, V, V, 3)`` MiniGrid
 encodings ordered oldest -> newest (the all-zero frame, "unseen" everywhere, pads windows at
 the start of an episode), and the constraint's token ids, int32 ``(B, L)`` right-padded with
 the id of :data:`jaxgrid.language.PAD`. Output: one logit per row that a violation is about to
-happen (the label's exact meaning is fixed by the data, see :mod:`checker.data`).
+happen (the label's exact meaning is fixed by the data, see :mod:`checker.data.labels`).
 
 Architecture (the paper's, sizes in :class:`CheckerConfig`):
 
@@ -38,11 +39,13 @@ XLA:CPU (figures in ``docs/decisions.md``).
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from jaxgrid import language
 from jaxgrid.constants import COLOR_NAMES, OBJECT_NAMES, STATE_NAMES
@@ -235,3 +238,104 @@ def init_params(config: CheckerConfig, key: jax.Array):
 def params_shape(config: CheckerConfig):
     """The parameter pytree of ``Checker(config)`` as ``jax.ShapeDtypeStruct`` leaves."""
     return jax.eval_shape(Checker(config).init, jax.random.PRNGKey(0), *_dummy_inputs(config))
+
+
+class TrainedChecker(struct.PyTreeNode):
+    """Parameters (the only pytree leaf) + static configuration of a trained window checker,
+    a :class:`checker.protocol.CheckerProtocol` whose carry is the embeddings of the last
+    ``window - 1`` frames.
+
+    Every method is a thin wrapper over ``Checker(config).apply(params, ...)``, pure and
+    jittable; a ``TrainedChecker`` can be passed through ``jax.jit`` as an argument.
+    """
+
+    params: Any
+    config: CheckerConfig = struct.field(pytree_node=False)
+    lookahead: int = struct.field(pytree_node=False, default=1)
+    env_id: str = struct.field(pytree_node=False, default="")
+    threshold: float = struct.field(pytree_node=False, default=0.5)
+    kind = "window"  # what it remembers: the last frames (checker.memory_model's: "memory")
+    reads = "window"  # windows of the last frames with their sentence
+    language = language  # the sentences its token ids spell
+    # A shield asks it about every action (None): from lookahead 1 on, a turn can lead to a
+    # state from which a violation is expected; its shield results were measured so.
+    shield_actions = None
+
+    def record(self) -> dict:
+        """What :func:`checker.store.save` records of it beside its parameters."""
+        return {"config": self.config.to_dict(), "lookahead": self.lookahead,
+                "env_id": self.env_id, "threshold": self.threshold}  # fmt: skip
+
+    @classmethod
+    def from_record(cls, meta: dict, read_params) -> TrainedChecker:
+        """The checker of a :meth:`record` ``meta``, its parameters from
+        ``read_params(template)`` (:func:`checker.store.load`)."""
+        config = CheckerConfig.from_dict(meta["config"])
+        return cls(params=read_params(params_shape(config)), config=config,
+                   lookahead=int(meta["lookahead"]), env_id=str(meta["env_id"]),
+                   threshold=float(meta["threshold"]))  # fmt: skip
+
+    @property
+    def module(self) -> Checker:
+        return Checker(self.config)
+
+    def logits(self, windows: jax.Array, tokens: jax.Array) -> jax.Array:
+        """uint8 ``(B, n, V, V, 3)``, int32 ``(B, L)`` -> float32 logits ``(B,)``."""
+        return self.module.apply(self.params, windows, tokens)
+
+    def probs(self, windows: jax.Array, tokens: jax.Array) -> jax.Array:
+        """Violation probabilities ``(B,)`` (sigmoid of :meth:`logits`)."""
+        return jax.nn.sigmoid(self.logits(windows, tokens))
+
+    def encode_language(self, tokens: jax.Array) -> jax.Array:
+        return self.module.apply(self.params, tokens, method=Checker.encode_language)
+
+    def embed_states(self, frames: jax.Array, actions: jax.Array | None = None) -> jax.Array:
+        """Frame embeddings; ``actions`` (the memory checker's interface) is unused: the
+        window checker reads frames only."""
+        del actions
+        return self.module.apply(self.params, frames, method=Checker.embed_states)
+
+    def classify(self, state_emb: jax.Array, lang: jax.Array) -> jax.Array:
+        return self.module.apply(self.params, state_emb, lang, method=Checker.classify)
+
+    # -- streams: what a learner carries per env (checker.protocol) ---------------------
+    def stream_start(self, emb: jax.Array, lang: jax.Array) -> jax.Array:
+        """The memory of episodes whose first frames embed to ``emb`` (E, D): the embeddings
+        of the last ``window - 1`` frames (E, n - 1, D), blank frames before the first.
+        ``lang`` is unused (the window is read with the sentence when it is scored)."""
+        del lang
+        v = self.config.view_size
+        blank = self.embed_states(jnp.zeros((1, v, v, 3), jnp.uint8))
+        n = self.config.window
+        older = jnp.broadcast_to(blank[:, None], (emb.shape[0], max(n - 2, 0), emb.shape[-1]))
+        return jnp.concatenate([older, emb[:, None]], axis=1)[:, max(2 - n, 0) :]
+
+    def stream_step(self, memory: jax.Array, emb: jax.Array, lang: jax.Array):
+        """``(logit (E,), memory)``: the violation logit of the window ending at the frame
+        embedded as ``emb``, and the memory with that frame in it."""
+        window = jnp.concatenate([memory, emb[:, None]], axis=1)
+        return self.classify(window, lang), window[:, 1:]
+
+    def candidate_logits(self, memory: jax.Array, emb: jax.Array, lang: jax.Array):
+        """Logits ``(E, A)`` of :meth:`stream_step` for each of ``A`` candidate frames
+        embedded as ``emb`` (E, A, D), from one memory per env (what a shield asks)."""
+        return candidate_logits(self.params, self.config, memory, emb, lang)
+
+
+def new_checker(
+    config: CheckerConfig,
+    key: jax.Array,
+    *,
+    lookahead: int = 1,
+    env_id: str = "",
+    threshold: float = 0.5,
+) -> TrainedChecker:
+    """An untrained (freshly initialised) checker."""
+    return TrainedChecker(
+        params=init_params(config, key),
+        config=config,
+        lookahead=int(lookahead),
+        env_id=str(env_id),
+        threshold=float(threshold),
+    )

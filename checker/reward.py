@@ -12,7 +12,7 @@ The PPO step keeps one buffer for all its environments and, with
 After an auto-reset ``ts.observation`` is the new episode's first observation, so passing
 ``done`` as ``episode_start`` clears the finished episode's frames: a window never mixes two
 episodes. Cleared frames are zeros, which is MiniGrid's "unseen" cell, the same padding a
-window has at the start of an episode. :func:`checker.data.collect` builds its training
+window has at the start of an episode. :func:`checker.data.streams.collect` builds its training
 windows with this very :func:`push`, so the checker is trained on what PPO feeds it.
 """
 

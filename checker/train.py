@@ -1,7 +1,7 @@
-"""Training the checker: :class:`CheckerTrainConfig` and :func:`train_checker`.
+"""Training a checker of either kind, by ``python -m checker`` and by the experiments.
 
-:func:`train_checker` is the one way a checker is trained, by ``python -m checker`` (noisy-oracle
-data) and by the experiments (their behaviour agent's data): it splits off a test set, then
+Window checkers (:class:`CheckerTrainConfig`, :func:`train_checker`; noisy-oracle windows or
+a behaviour agent's): :func:`train_checker` splits off a test set, then
 fits :class:`~checker.model.Checker` with AdamW on binary cross-entropy with logits: one jitted
 step per minibatch of a fresh permutation each epoch (the last incomplete minibatch is skipped,
 a different one each epoch). A ``lax.scan`` over an epoch was measured 6-7x slower on XLA:CPU
@@ -12,6 +12,10 @@ parameters of the best epoch are returned.
 Sentences are few (at most 210 distinct constraints exist), so each minibatch encodes the
 table of the dataset's *distinct* token rows once and gathers the codes per row: the same
 function and gradients as encoding every row, at a fraction of the GRU's cost.
+
+Memory checkers (:class:`MemoryTrainConfig`, :func:`train_memory_checker`): Adam on whole
+streams (:func:`checker.data.collect_streams`), backpropagation through each stream untruncated,
+``batch_streams`` streams drawn per update, the rare violations' loss weighted.
 """
 
 from __future__ import annotations
@@ -35,11 +39,25 @@ from checker.data import (
     with_colour_counterfactuals,
     with_distractors,
 )
-from checker.model import Checker, CheckerConfig, init_params
-from checker.trained import TrainedChecker
+from checker.data.labels import STREAM_LOOKAHEADS
+from checker.memory_model import (
+    MemoryChecker,
+    MemoryCheckerConfig,
+    stream_input_names,
+    stream_inputs,
+)
+from checker.model import Checker, CheckerConfig, TrainedChecker, init_params
 from jaxgrid import language
 
-__all__ = ["CheckerTrainConfig", "check_window_scenario", "train_checker", "window_scenarios"]
+__all__ = [
+    "CheckerTrainConfig",
+    "MemoryTrainConfig",
+    "check_window_scenario",
+    "fit_memory_checker",
+    "train_checker",
+    "train_memory_checker",
+    "window_scenarios",
+]
 
 
 def window_scenarios() -> list[str]:
@@ -65,7 +83,7 @@ def check_window_scenario(env_id: str, command: str, why: str) -> None:
         return
     if isinstance(jaxgrid.make(env_id), HazardRooms):  # an unknown id: make's ValueError
         instead = (f"{env_id}'s constraints (budgets, sequences, proximity, ...) are learnt by "
-                   "a memory checker: python -m checker.memory")  # fmt: skip
+                   "a memory checker: python -m checker --kind memory")  # fmt: skip
     elif env_id.startswith("MiniGrid-"):
         instead = f"{env_id} has no constraint, so there is no violation to measure"
     else:
@@ -110,7 +128,7 @@ class CheckerTrainConfig:
     # lookahead is 1 (labels would not be exact) and the final windows are marked.
     blocked: int = 1
     # Also train on the windows that end at an episode's final observation, labelled by the
-    # step that ended it (checker.data, "Final windows"): the checker reward and the shield
+    # step that ended it (checker.data.streams, "Final windows"): the checker reward and the shield
     # score such windows, and where a violation ends the episode (lava) it is the only window
     # that shows the step into it.
     final_windows: bool = True
@@ -377,6 +395,102 @@ def train_checker(
         threshold=float(s.threshold),
     )
     return trained, history, test
+
+
+# ------------------------------------------------------------------------ memory checker
+
+
+@dataclasses.dataclass(frozen=True)
+class MemoryTrainConfig:
+    """Data and optimisation settings of a memory checker (:func:`train_memory_checker`;
+    ``streams`` and ``steps`` size what :func:`checker.data.collect_streams` gathers for it);
+    the defaults are the memory checker of the HazardRooms experiment."""
+
+    streams: int = 512  # streams collected, for training and again for the test
+    steps: int = 160  # frames per stream
+    updates: int = 600  # training updates
+    batch_streams: int = 16  # streams per update
+    lr: float = 1e-3  # Adam step size
+    positive_weight: float = 10.0  # violations are rare: weight their loss
+    guided: float = 0.0  # share of the actions from the BFS oracle (half the streams obey it)
+    # 1: the step out of each frame violates (the paper's just-before label); 0: the step
+    # into it did (what a shield asks of a candidate frame)
+    lookahead: int = 1
+    seed: int = 0  # seeds the streams (the test streams: seed + 1000) and the training
+
+    def __post_init__(self):
+        me = type(self).__name__
+        for name in ("streams", "steps", "updates", "batch_streams"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{me}.{name} must be an int >= 1, got {value!r}")
+        for name in ("lr", "positive_weight"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{me}.{name} must be > 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.guided <= 1.0:
+            raise ValueError(f"{me}.guided must be in [0, 1], got {self.guided!r}")
+        if self.lookahead not in STREAM_LOOKAHEADS or isinstance(self.lookahead, bool):
+            raise ValueError(f"{me}.lookahead must be one of {STREAM_LOOKAHEADS}, got "
+                             f"{self.lookahead!r}")  # fmt: skip
+        if self.batch_streams > self.streams:
+            raise ValueError(
+                f"{me}.batch_streams ({self.batch_streams}) exceeds {me}.streams ({self.streams})"
+            )
+
+
+def _memory_loss(model, params, batch, positive_weight):
+    logits = model.apply(params, *stream_inputs(model.config, batch))
+    y = batch["label"].astype(jnp.float32)
+    weight = jnp.where(y > 0, positive_weight, 1.0) * batch["valid"]
+    losses = optax.sigmoid_binary_cross_entropy(logits, y)
+    return jnp.sum(losses * weight) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
+def train_memory_checker(
+    data: dict, config: MemoryCheckerConfig, train: MemoryTrainConfig, progress=None
+):
+    """Fit :class:`MemoryChecker` on ``data`` (:func:`checker.data.collect_streams`); returns
+    ``(params, losses)``. Each update takes ``batch_streams`` whole streams."""
+    model = MemoryChecker(config)
+    key = jax.random.PRNGKey(train.seed)
+    n = data["starts"].shape[0]
+    if train.batch_streams > n:
+        raise ValueError(f"batch_streams {train.batch_streams} exceeds the {n} streams collected")
+    fields = stream_input_names(config) + ("label", "valid")
+    arrays = {k: jnp.asarray(data[k]) for k in fields}
+    sample = jax.tree.map(lambda a: a[:1], arrays)
+    params = jax.jit(model.init)(key, *stream_inputs(config, sample))
+    tx = optax.adam(train.lr)
+    opt = tx.init(params)
+
+    @jax.jit
+    def update(params, opt, key):
+        idx = jax.random.choice(key, n, (train.batch_streams,), replace=False)
+        batch = jax.tree.map(lambda a: a[idx], arrays)
+        loss_fn = lambda p: _memory_loss(model, p, batch, train.positive_weight)  # noqa: E731
+        loss, grads = jax.value_and_grad(loss_fn)(params)
+        updates, opt = tx.update(grads, opt, params)
+        return optax.apply_updates(params, updates), opt, loss
+
+    losses = []
+    for i, k in enumerate(jax.random.split(jax.random.fold_in(key, 1), train.updates)):
+        params, opt, loss = update(params, opt, k)
+        losses.append(float(loss))
+        if progress is not None:
+            progress(i, losses[-1])
+    return params, np.asarray(losses)
+
+
+def fit_memory_checker(
+    data: dict, config: MemoryCheckerConfig, train: MemoryTrainConfig, desc: str | None = None
+):
+    """:func:`train_memory_checker` with a progress bar named ``desc`` (None: no bar)."""
+    if desc is None:
+        return train_memory_checker(data, config, train)
+    from tqdm.auto import tqdm
+
+    with tqdm(total=train.updates, desc=desc, unit="update", leave=False) as bar:
+        return train_memory_checker(data, config, train, lambda i, loss: bar.update(1))
 
 
 if __name__ == "__main__":  # not a command: say which one trains a checker

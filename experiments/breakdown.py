@@ -31,7 +31,7 @@ import numpy as np
 import checker as chk
 from agents.runner import load_agents
 from checker import cli
-from checker.trained import check_writable_file, params_sha256
+from checker.store import check_writable_file, params_sha256
 from experiments.memory_phase import SHIELD_CHECKER
 from jaxgrid import hazard_language, language
 from jaxgrid.constants import DOOR, EMPTY, WALL

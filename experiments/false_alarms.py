@@ -26,8 +26,8 @@ import checker as chk
 import jaxgrid
 from checker import cli
 from checker.data import front_cells
+from checker.store import check_writable_file, checker_kind
 from checker.train import check_window_scenario
-from checker.trained import check_writable_file, checker_kind
 from jaxgrid import language
 from jaxgrid.constants import COLOR_NAMES, DOOR, OBJECT_NAMES, STATE_NAMES
 from jaxgrid.io import write_json

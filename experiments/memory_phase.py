@@ -1,15 +1,15 @@
-"""Phases a-c for constraints that count: the memory checker (:mod:`checker.memory`).
+"""Phases a-c for constraints that count: the memory checker (:mod:`checker.memory_model`).
 
 A window of a few frames cannot tell the third step on lava from the first, so scenarios whose
 sentences have budgets or triggers (``HazardRooms-v0``) train a recurrent checker instead of a
 behaviour agent, windows and a window checker:
 
 * **data**: whole streams of the agents' own env (its sentences, auto-reset) under the random
-  behaviour policy :data:`checker.memory.BEHAVIOUR` (a share of the actions from the BFS
+  behaviour policy :data:`checker.data.BEHAVIOUR` (a share of the actions from the BFS
   oracle with ``guided``), labelled by the ground-truth monitor: by default one step ahead
-  (the step out of each frame violates), with ``label="into"`` the step into each frame
-  (:func:`checker.memory.relabel`);
-* **checker**: :func:`checker.memory.train_memory_checker`, saved in ``DIR/checker/``;
+  (the step out of each frame violates), with ``lookahead=0`` the step into each frame
+  (:func:`checker.data.relabel`);
+* **checker**: :func:`checker.train.train_memory_checker`, saved in ``DIR/checker/``;
 * **the shield's own checker** (``ExperimentConfig.shield_guided``): the same, with another
   share of oracle actions, in ``DIR/shield_checker/`` and ``DIR/shield_checker.json``;
 * **report**: on fresh streams of the same env (another key), the metrics of the window
@@ -29,9 +29,11 @@ import jax
 import numpy as np
 
 import checker as chk
-from checker import memory
-from checker.metrics import binary_metrics
-from checker.trained import params_sha256
+from checker import memory_model
+from checker.data import collect_streams, relabel
+from checker.metrics import binary_metrics, evaluate_streams, predict_streams
+from checker.store import params_sha256
+from checker.train import fit_memory_checker
 from experiments.phases import redo
 from experiments.report import checker_rates
 from jaxgrid.io import read_json, write_json
@@ -67,21 +69,22 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
             redo(phase, e)
     env = cfg.ppo.make_env()
     key = jax.random.PRNGKey(cfg.seed)
-    data = memory.collect_streams(env, key, settings.streams, settings.steps, settings.guided)
-    data = memory.relabel(data, settings.label)
-    config = memory.MemoryCheckerConfig(view_size=env.view_size, actions=cfg.checker_actions)
-    params, losses = memory.fit(data, config, settings, phase if cfg.progress else None)
+    data = collect_streams(env, key, settings.streams, settings.steps, settings.guided)
+    data = relabel(data, settings.lookahead)
+    config = memory_model.MemoryCheckerConfig(view_size=env.view_size, actions=cfg.checker_actions)
+    params, losses = fit_memory_checker(data, config, settings, phase if cfg.progress else None)
     threshold = cfg.ppo.checker_threshold
-    trained = memory.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
-                                          threshold=threshold, label=settings.label)  # fmt: skip
-    memory.save(trained, ckpt)
-    test = memory.collect_streams(env, jax.random.fold_in(key, 1), settings.streams,
-                                  settings.steps, settings.guided)  # fmt: skip
-    test = memory.relabel(test, settings.label)
-    probs = memory.predict_streams(params, config, test)
+    trained = memory_model.TrainedMemoryChecker(params=params, config=config, env_id=cfg.env_id,
+                                                threshold=threshold,
+                                                lookahead=settings.lookahead)  # fmt: skip
+    chk.save(trained, ckpt)
+    test = collect_streams(env, jax.random.fold_in(key, 1), settings.streams, settings.steps,
+                           settings.guided)  # fmt: skip
+    test = relabel(test, settings.lookahead)
+    probs = predict_streams(params, config, test)
     valid = test["valid"]
     metrics = {**binary_metrics(test["label"][valid], probs[valid], threshold),
-               **memory.evaluate_streams(probs, test, label=settings.label)}  # fmt: skip
+               **evaluate_streams(probs, test, lookahead=settings.lookahead)}  # fmt: skip
     report = {
         "kind": "memory",
         "test": checker_rates(metrics),  # undefined rates filled as the window checker's are
@@ -89,7 +92,7 @@ def train_memory_checker(cfg, out: Path, name: str = "checker", guided: float | 
         "transfer": None,
         "details": {"test": metrics},
         "training": {"updates": settings.updates, "streams": settings.streams,
-                     "steps": settings.steps, "label": settings.label,
+                     "steps": settings.steps, "lookahead": settings.lookahead,
                      "guided": settings.guided, "actions": config.actions,
                      "train_positives": int(data["label"].sum()),
                      "final_loss": float(np.mean(losses[-50:]))},

@@ -26,7 +26,8 @@ from agents.config import PPOConfig
 from agents.networks import start_memory
 from agents.runner import run as run_ppo
 from agents.train import make_learner
-from checker.trained import params_sha256
+from checker.protocol import LABEL_LOOKAHEADS
+from checker.store import params_sha256
 from experiments import provenance
 from experiments.report import checker_rates
 from jaxgrid.io import holds_declared_default, read_json, to_jsonable, write_json
@@ -100,6 +101,9 @@ def prepare_out(cfg) -> Path:
                 f"{cfg.out}; delete it to resume with these flags"
             ) from None
         theirs = {k: v for k, v in _flat(saved).items() if k not in free}
+        if "memory_checker.label" in theirs:  # recorded before it was named lookahead
+            label = theirs.pop("memory_checker.label")
+            theirs["memory_checker.lookahead"] = LABEL_LOOKAHEADS.get(label, label)
         diff = sorted(
             k for k in mine.keys() | theirs.keys()
             if mine.get(k) != theirs.get(k)
@@ -264,7 +268,7 @@ def _transfer(cfg, trained, report: dict) -> dict | None:
 
 def load_reused(cfg):
     """``--checker DIR`` loaded and checked against ``cfg`` before anything is written or
-    compiled: a checker whose kind, window, label timing (``--lookahead`` / ``--memory-label``),
+    compiled: a checker whose kind, window, label timing (``--lookahead`` / ``--memory-lookahead``),
     inputs (``--checker-actions``) or view size differ from the experiment's is refused by
     name, since its alarms would mean something else (its vocabulary and sentence length are
     checked by :func:`checker.load`). Returns the trained checker."""
@@ -284,7 +288,8 @@ def load_reused(cfg):
                     ("lookahead", trained.lookahead, cfg.checker_train.lookahead,
                      "--lookahead")]  # fmt: skip
     else:
-        mismatch = [("label", trained.label, cfg.memory_checker.label, "--memory-label"),
+        mismatch = [("lookahead", trained.lookahead, cfg.memory_checker.lookahead,
+                     "--memory-lookahead"),
                     ("actions", trained.config.actions, cfg.checker_actions,
                      "--checker-actions")]  # fmt: skip
     for name, theirs, mine, option in mismatch:

@@ -51,8 +51,7 @@ from tyro.constructors import PrimitiveConstructorSpec
 
 from agents.config import REWARD_MODES, PPOConfig, check_sweep
 from checker import cli
-from checker.memory import MemoryTrainConfig
-from checker.train import CheckerTrainConfig
+from checker.train import CheckerTrainConfig, MemoryTrainConfig
 from experiments import assembly, memory_phase, phases, scheduling
 from experiments.presets import PRESETS, Experiment
 from jaxgrid import rundir
@@ -364,6 +363,9 @@ def hidden_flags(row: Experiment) -> cli.Names:
 def parse_args(argv, row: Experiment):
     """The configuration of ``argv``: experiment ``row`` in the preset ``--quick``/``--paper``
     name (default: the default), then every flag given; ``row.hidden`` has no flag."""
+    prog = f"python -m experiments.{row.name}"
+    argv = cli.label_flags(sys.argv[1:] if argv is None else argv, "--memory-label",
+                           "--memory-lookahead", prog)  # fmt: skip
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     for name in ("quick", "paper"):
         pre.add_argument(f"--{name}", action=argparse.BooleanOptionalAction, default=False)
@@ -373,9 +375,9 @@ def parse_args(argv, row: Experiment):
     names = {cls: {**FLAGS.get(cls, {}), **hide.get(cls, {})} for cls in FLAGS.keys() | hide}
     return cli.parse(
         ExperimentConfig, argv, default=preset(row, name or "default"), names=names,
-        prog=f"python -m experiments.{row.name}", description=f"{row.name}: the paper's "
-        f"experiment on {row.env_id} ({row.phases}, PPO in every reward mode, report). "
-        "--quick and --paper change the defaults shown here.",
+        prog=prog, description=f"{row.name}: the paper's experiment on {row.env_id} "
+        f"({row.phases}, PPO in every reward mode, report). --quick and --paper change the "
+        "defaults shown here.",
     )  # fmt: skip
 
 

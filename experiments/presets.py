@@ -79,7 +79,7 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
                phases="random-policy streams, memory checker", changes=dict(
         # a frame and the episode's memory determine the step into it, and a shield asks
         # about the frame each candidate action leads to
-        memory_checker=dict(label="into"),
+        memory_checker=dict(lookahead=0),
         # the shield's own checker: half its streams' actions from the oracle, so that they
         # pass the doors as trained agents do (fewer false alarms in whole episodes)
         shield_guided=0.5,

@@ -32,8 +32,8 @@ import jaxgrid
 from agents.evaluation import violation_of
 from agents.shield import make_shield
 from checker import cli
+from checker.store import check_writable_file, checker_kind
 from checker.train import check_window_scenario
-from checker.trained import check_writable_file, checker_kind
 from jaxgrid.io import write_json
 
 PROG = "python -m experiments.shield_judges"

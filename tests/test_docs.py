@@ -60,7 +60,7 @@ def test_site_builds_strict(site_tools, tmp_path):
     assert "--penalty-warmup" in experiments and "hazard_rooms" in experiments  # the hook ran
     assert "<!-- flags:" not in experiments
     cli = (site / "cli" / "index.html").read_text()
-    assert "--label" in cli and "--num-envs" in cli  # checker.memory's, the benchmarks'
+    assert "--batch-streams" in cli and "--num-envs" in cli  # checker.memory's, benchmarks'
     api = (site / "api" / "jaxgrid" / "index.html").read_text()
     assert "jaxgrid.registry.make" in api  # mkdocstrings rendered the docstrings
     if (ROOT / "jaxgrid" / "gymnax.py").exists():

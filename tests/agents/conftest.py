@@ -6,7 +6,7 @@ import jax
 import pytest
 from helpers.agents_cases import CHECKER_CONFIG
 
-from checker.trained import new_checker
+from checker.model import new_checker
 
 
 @pytest.fixture(scope="session")

@@ -16,7 +16,7 @@ from helpers.agents_cases import (
 
 from agents.runner import run
 from agents.train import make_learner, make_train
-from checker.trained import TrainedChecker
+from checker.model import TrainedChecker
 
 
 @pytest.mark.parametrize(

@@ -11,10 +11,11 @@ import pytest
 from helpers.agents_cases import CHECKER_CONFIG, TINY, fast_jit
 
 import jaxgrid
-from agents.shield import MOVES, make_shield
+from agents.shield import make_shield
 from agents.train import make_learner
-from checker import memory as M
-from checker.trained import new_checker
+from checker import memory_model as MM
+from checker.model import new_checker
+from checker.protocol import MOVES, NO_ACTION
 from jaxgrid.wrappers import BatchedAutoReset
 
 SENTENCES = (
@@ -27,14 +28,14 @@ HAZARD = dataclasses.replace(
     penalty=1.0, soft_checker=True,
     env_kwargs=(("sentences", SENTENCES), ("max_steps", 7)),
 )  # fmt: skip
-SMALL = M.MemoryCheckerConfig(
+SMALL = MM.MemoryCheckerConfig(
     word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4, state_dim=8, memory_dim=16, mlp_dim=16
 )
 
 
 @pytest.fixture(scope="module")
 def memory_checker():
-    return M.new_memory_checker(SMALL, jax.random.PRNGKey(5), env_id="HazardRooms-v0")
+    return MM.new_memory_checker(SMALL, jax.random.PRNGKey(5), env_id="HazardRooms-v0")
 
 
 def _streams(observed, finals, done):
@@ -62,7 +63,7 @@ def test_the_rollout_scores_each_step_as_the_whole_stream_would(memory_checker, 
     checker of ``actions`` reads each frame with the action taken into it."""
     if actions:
         config = dataclasses.replace(SMALL, actions=True)
-        memory_checker = M.new_memory_checker(config, jax.random.PRNGKey(5))
+        memory_checker = MM.new_memory_checker(config, jax.random.PRNGKey(5))
     cfg = dataclasses.replace(HAZARD, reward_mode="checker")
     learner = make_learner(cfg, memory_checker)
     runner = fast_jit(learner.init)(jax.random.PRNGKey(2))
@@ -86,7 +87,7 @@ def test_the_rollout_scores_each_step_as_the_whole_stream_would(memory_checker, 
     frames = np.zeros((len(streams), length) + images[0].shape[2:], np.uint8)
     starts = np.ones((len(streams), length), bool)
     tokens = np.zeros((len(streams), length, learner.table.shape[1]), np.int32)
-    moves = np.full((len(streams), length), M.NO_ACTION, np.int32)
+    moves = np.full((len(streams), length), NO_ACTION, np.int32)
     sentence, table = np.asarray(traj.sentence), np.asarray(learner.table)
     for e, rows in enumerate(streams):
         for i, (which, t, start, scored) in enumerate(rows):
@@ -123,11 +124,12 @@ def test_the_shield_trains_and_evaluates_with_the_memory_checker(memory_checker)
 
 
 def test_a_checker_of_the_step_into_each_frame_judges_moves_only(memory_checker):
-    """A memory checker of ``label="into"`` judges the step itself, which only a move can
-    make a violation: its shield scores forward as the all-action shield does and never blocks
-    another action; one of just-before labels (turning may face a hazard) judges them all."""
+    """A memory checker of the step into each frame (``lookahead`` 0) judges the step itself,
+    which only a move can make a violation: its shield scores forward as the all-action shield
+    does and never blocks another action; one of just-before labels (turning may face a
+    hazard) judges them all."""
     env = jaxgrid.make("HazardRooms-v0", sentences=SENTENCES)
-    into = memory_checker.replace(label="into")
+    into = memory_checker.replace(lookahead=0)
     assert make_shield(env, "checker", memory_checker).judged is None
     shield = make_shield(env, "checker", into)
     assert shield.judged == MOVES
@@ -152,8 +154,8 @@ def test_a_shield_of_actions_reads_each_candidate_with_its_action():
     """A checker of ``actions`` scores a candidate frame with the action that reaches it:
     forward for a step-into shield, and each action for an all-action one."""
     env = jaxgrid.make("HazardRooms-v0", sentences=SENTENCES)
-    into = M.new_memory_checker(
-        dataclasses.replace(SMALL, actions=True), jax.random.PRNGKey(6), label="into"
+    into = MM.new_memory_checker(
+        dataclasses.replace(SMALL, actions=True), jax.random.PRNGKey(6), lookahead=0
     )
     shield = make_shield(env, "checker", into)
     states, ts = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(2), 16))
@@ -167,4 +169,4 @@ def test_a_shield_of_actions_reads_each_candidate_with_its_action():
         return np.asarray(jax.nn.sigmoid(into.candidate_logits(memory, emb[:, None], lang)))[:, 0]
 
     np.testing.assert_allclose(risk[:, MOVES[0]], score(MOVES[0]), atol=1e-6)
-    assert np.abs(risk[:, MOVES[0]] - score(M.NO_ACTION)).min() > 0
+    assert np.abs(risk[:, MOVES[0]] - score(NO_ACTION)).min() > 0

@@ -20,7 +20,7 @@ from helpers.agents_cases import CHECKER_CONFIG, TINY, fast_jit
 from jax import lax
 
 import checker.reward as creward
-from agents import rollout
+from agents import checker_carry, rollout
 from agents.networks import ActorCritic
 from agents.train import make_learner
 from jaxgrid.constants import FORWARD
@@ -146,7 +146,7 @@ def test_checker_embeds_only_the_masked_rows_with_the_same_bits(tiny_checker):
     """``masked_map`` of the embedding (the first frames of new episodes) equals embedding
     every row and selecting, bit for bit: no row, a few rows, more rows than one chunk, and
     under vmap."""
-    embed = functools.partial(rollout.embed, tiny_checker)
+    embed = functools.partial(checker_carry.embed, tiny_checker)
     rng = np.random.default_rng(0)
     images = jnp.asarray(rng.integers(0, 11, (3, 40, 5, 5, 3)), jnp.uint8)
     other = jnp.asarray(rng.normal(size=(3, 40, CHECKER_CONFIG.state_dim)), jnp.float32)

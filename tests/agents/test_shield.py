@@ -16,8 +16,9 @@ import checker.reward as creward
 import jaxgrid
 from agents.evaluation import play_episodes
 from agents.losses import ppo_loss
-from agents.shield import MOVES, allow_least_risky, blocked_mass, make_shield, mask_logits
+from agents.shield import allow_least_risky, blocked_mass, make_shield, mask_logits
 from agents.train import make_learner
+from checker.protocol import MOVES
 
 
 def test_masked_policy_renormalises_over_the_allowed_actions():

@@ -8,8 +8,7 @@ from helpers.cli_help import help_entries, squeezed
 
 import jaxgrid
 from benchmarks import checker_cost
-from checker.model import CheckerConfig
-from checker.trained import new_checker
+from checker.model import CheckerConfig, new_checker
 
 
 def test_flags(capsys, compiles):

@@ -1,5 +1,6 @@
 """Session fixtures of the checker's tests (built by ``helpers.checker_cases``): each test
-process collects the TwoRooms rollout and trains the toy checker at most once."""
+process collects the TwoRooms rollout and the HazardRooms streams and trains the toy checker
+at most once."""
 
 from __future__ import annotations
 
@@ -36,3 +37,9 @@ def toy():
 def trained_toy(toy):
     """``(TrainedChecker, history)`` trained on ``toy``'s training split."""
     return cases.train_toy(toy[0])
+
+
+@pytest.fixture(scope="session")
+def streams():
+    """16 HazardRooms streams of 60 frames (the memory checker's data)."""
+    return cases.hazard_streams()

@@ -9,7 +9,7 @@ import pytest
 
 import checker
 from checker import CheckerConfig, CheckerDataset
-from checker.trained import new_checker
+from checker.model import new_checker
 
 SMALL = CheckerConfig(window=2, view_size=3, word_dim=4, gru_dim=4, state_dim=4, cell_dim=2,
                       conv_channels=2, temporal_channels=2, mlp_dim=4, mlp_layers=1)  # fmt: skip

@@ -1,7 +1,8 @@
-"""The checker's command lines, generated from its configs: ``python -m checker`` (every
+"""The checker's command line, generated from its configs: ``python -m checker`` (every
 training setting a flag, ``--counterfactuals`` and ``--distractors`` included), usage errors
 naming the flag before anything compiles, and the test and
-validation splits that :class:`checker.CheckerTrainConfig` sets for :func:`checker.train_checker`.
+validation splits that :class:`checker.CheckerTrainConfig` sets for :func:`checker.train_checker`;
+``--kind memory`` (its flags, the former ``--label``, its report).
 """
 
 from __future__ import annotations
@@ -12,12 +13,14 @@ import subprocess
 import sys
 
 import pytest
+from helpers import checker_cases as cases
 from helpers.checker_cases import TINY, toy_split
 from helpers.cli_help import help_entries, squeezed
 
 import checker
 from checker import CheckerTrainConfig, train_checker
 from checker import __main__ as checker_main
+from checker.train import MemoryTrainConfig
 
 
 def test_python_m_checker_help_shows_every_setting_with_its_default():
@@ -129,3 +132,66 @@ def test_python_m_checker_end_to_end_small(tmp_path):
     }  # fmt: skip
     assert saved["args"]["train"]["distractors"] == 0
     assert saved["timing_s"]["collect_plus_train"] > 0 and report["samples"] == 400
+
+
+# ---------------------------------------------------------- python -m checker --kind memory
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--envs", "0"], "--envs must be an int >= 1, got 0"),
+        (["--updates", "0"], "--updates must be an int >= 1, got 0"),
+        (["--batch-streams", "0"], "--batch-streams must be an int >= 1, got 0"),
+        (["--late", "0"], "--late must be at least 1, got 0"),
+        (["--envs", "8", "--batch-streams", "16"], "--batch-streams (16) exceeds --envs (8)"),
+    ],
+)
+def test_memory_flags_are_refused_before_any_work(argv, message, capsys):
+    with pytest.raises(SystemExit):
+        checker_main.main(["--kind", "memory", *argv])
+    assert message in capsys.readouterr().err
+
+
+def test_the_former_label_flag_is_read_as_its_lookahead(capsys):
+    """``--label next|into`` (the memory checker's flag before its label timing was named
+    ``lookahead``) still works, and says what it means when its value is wrong."""
+    parse = lambda *argv: checker_main.parse(["--kind", "memory", *argv])  # noqa: E731
+    assert parse().train.lookahead == 1 and parse("--lookahead", "0").train.lookahead == 0
+    assert parse("--label", "into").train.lookahead == 0
+    assert parse("--label=next", "--envs", "32").train == MemoryTrainConfig(streams=32)
+    with pytest.raises(SystemExit) as exc:
+        parse("--label", "before")
+    assert exc.value.code == 2
+    assert "--label must be one of ('next', 'into')" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        checker_main.parse(["--label", "into", "--out", "x"])  # a window checker's flags
+    assert "--label" in capsys.readouterr().err
+
+
+def test_the_kind_chooses_the_flags(capsys):
+    assert checker_main.parse(["--out", "x"]).kind == "window"
+    assert checker_main.parse(["--kind", "window", "--out", "x"]).kind == "window"
+    assert checker_main.parse(["--kind", "memory"]).kind == "memory"
+    with pytest.raises(SystemExit) as exc:
+        checker_main.parse(["--kind", "lstm"])
+    assert exc.value.code == 2 and "invalid choice: 'lstm'" in capsys.readouterr().err
+
+
+def test_run_reports_settings_and_every_split(monkeypatch):
+    monkeypatch.setattr(
+        checker_main, "collect_streams", lambda env, key, n, t, guided=0.0: cases.fake_streams(n, t)
+    )
+    report = checker_main.run_memory(
+        num_envs=4,
+        num_steps=12,
+        config=cases.MEMORY_SMALL,
+        train=MemoryTrainConfig(updates=2, batch_streams=2, lookahead=0),
+    )
+    assert report["train_config"]["lookahead"] == 0
+    assert report["train_config"]["updates"] == 2 and report[
+        "checker_config"
+    ] == dataclasses.asdict(cases.MEMORY_SMALL)
+    keys = {"auroc", "positives", "per_type", "late_budget", "costly_budget"}
+    assert set(report["train"]) == keys
+    assert "heldout" in report and report["wall_s"] > 0

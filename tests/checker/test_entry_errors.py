@@ -19,7 +19,7 @@ from helpers.cli_help import exit_code, fake_checker, help_entries, squeezed, st
 
 from checker import __main__ as checker_main
 from checker import memory as MC
-from checker.trained import CHECKER_FILES, check_vocab
+from checker.store import CHECKER_FILES, check_vocab
 from jaxgrid import rundir
 
 
@@ -30,7 +30,7 @@ def fake_checker_here(directory, **meta) -> str:
 # ---------------------------------------------------------------------- python -m checker
 @pytest.mark.parametrize(
     ("env", "instead"),
-    [("HazardRooms-v0", "python -m checker.memory"),
+    [("HazardRooms-v0", "python -m checker --kind memory"),
      ("MiniGrid-DoorKey-8x8-v0", "MiniGrid-DoorKey-8x8-v0 has no constraint")],
 )  # fmt: skip
 def test_checker_refuses_an_env_without_the_scenarios_constraint(env, instead, tmp_path, capsys,
@@ -74,8 +74,9 @@ def test_a_checker_config_without_vocabulary_is_named_not_none():
 def test_memory_help_lists_every_flag_with_its_default(capsys):
     assert exit_code(MC.main, ["--help"]) == 0
     entries = help_entries(capsys.readouterr().out)
-    flags = {"--envs", "--steps", "--updates", "--batch-streams", "--guided", "--label",
-             "--seed", "--late", "--memory", "--actions", "--json", "--out", "--overwrite"}
+    flags = {"--envs", "--steps", "--updates", "--batch-streams", "--guided", "--lookahead",
+             "--seed", "--late", "--memory", "--actions", "--json", "--out", "--overwrite",
+             "--kind"}
     assert flags <= set(entries), sorted(entries)
     missing = [f for f, text in entries.items() if f != "--help" and "(default:" not in text]
     assert not missing, missing
@@ -103,7 +104,7 @@ def test_memory_refuses_a_checker_directory_unless_overwrite(tmp_path, monkeypat
     fake_checker_here(out, lookahead=1)
     (out / "report.json").write_text("{}")
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    monkeypatch.setattr(MC, "run", lambda **kw: pytest.fail("work started"))
+    monkeypatch.setattr(checker_main, "run_memory", lambda **kw: pytest.fail("work started"))
     with pytest.raises(ValueError, match="not empty.*--overwrite"):
         MC.main(["--out", str(out)])
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
@@ -118,7 +119,7 @@ def test_memory_refuses_a_checker_directory_unless_overwrite(tmp_path, monkeypat
         seen.update(files=sorted(os.listdir(out)), out=kw["out"])
         return {"train": {}, "heldout": {}}
 
-    monkeypatch.setattr(MC, "run", run)
+    monkeypatch.setattr(checker_main, "run_memory", run)
     MC.main(["--out", str(out), "--overwrite"])
     assert seen == {"files": [rundir.LOCK_FILE], "out": str(out)}
     assert not out.joinpath(rundir.LOCK_FILE).exists() and not compiles
@@ -126,7 +127,7 @@ def test_memory_refuses_a_checker_directory_unless_overwrite(tmp_path, monkeypat
 
 
 def test_memory_checks_out_and_json_before_any_work(tmp_path, monkeypatch, capsys, compiles):
-    monkeypatch.setattr(MC, "run", lambda **kw: pytest.fail("work started"))
+    monkeypatch.setattr(checker_main, "run_memory", lambda **kw: pytest.fail("work started"))
     a_file = tmp_path / "a-file"
     a_file.write_text("keep")
     with pytest.raises(ValueError, match="not writable"):

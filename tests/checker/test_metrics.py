@@ -1,5 +1,6 @@
 """checker.metrics against hand computations (AUROC with ties, thresholded metrics, ECE, lead
-time) and the colour counterfactual on the toy checker."""
+time), the colour counterfactual on the toy checker, and the memory checker's late-violation
+mask and per-type report on hand-made streams."""
 
 from __future__ import annotations
 
@@ -7,10 +8,18 @@ import json
 
 import numpy as np
 import pytest
+from helpers import checker_cases as cases
 
 import checker
 from checker import CheckerDataset
-from checker.metrics import auroc, binary_metrics, expected_calibration_error, lead_time
+from checker.metrics import (
+    auroc,
+    binary_metrics,
+    evaluate_streams,
+    expected_calibration_error,
+    late_violation_mask,
+    lead_time,
+)
 
 # ---------------------------------------------------------------------------------- metrics
 
@@ -70,3 +79,39 @@ def test_colour_counterfactual_on_toy(toy, trained_toy):
     cf = checker.colour_counterfactual(trained_toy[0], test)
     assert cf["n"] == int(test.labels.sum())
     assert cf["auroc"] > 0.9 and cf["mean_prob"] > cf["mean_prob_counterfactual"]
+
+
+# ------------------------------------------------------------ the memory checker's streams
+
+
+def test_late_mask_and_report_read_into_labels_one_frame_later():
+    """The hand-made streams below, labelled on the frame after each violating step."""
+    d = cases.budget_streams(1, 30)
+    d["cost"][0, [3, 13]] = 1  # costly steps lead into frames 3 and 13 ...
+    d["label"][0, 13] = 1  # ... and the second was one too many: 10 steps later, not late
+    assert not late_violation_mask(d, late=10, lookahead=0).any()
+    assert late_violation_mask(d, late=10, lookahead=1).all()  # read as frame 14
+    report = evaluate_streams(np.where(d["cost"] > 0, 0.5, 0.0), d, 10, lookahead=0)
+    assert report["costly_budget"] == {"auroc": 0.5, "positives": 1}
+    report = evaluate_streams(d["label"] * 0.9, d, 10, lookahead=0)
+    assert report["costly_budget"]["auroc"] == 1.0 and report["late_budget"]["auroc"] is None
+
+
+def test_late_mask_and_report_on_hand_made_streams():
+    d = cases.budget_streams(2, 30)
+    d["starts"][1, 20] = True
+    d["cost"][0, 3] = 1  # first costly event at step 3 ...
+    d["label"][0, 17] = 1  # ... the violating step 18: 15 steps later
+    d["cost"][1, 5] = 1
+    d["label"][1, 9] = 1  # violation 5 steps after the first cost
+    mask = late_violation_mask(d, late=10)
+    assert mask[0].all() and not mask[1].any()
+    probs = np.where(d["label"] > 0, 0.9, 0.1)
+    report = evaluate_streams(probs, d, late=10)
+    assert report["auroc"] == 1.0 and report["per_type"]["budget"]["auroc"] == 1.0
+    assert report["per_type"]["avoid"]["auroc"] is None  # no such episodes
+    assert report["late_budget"] == {"late": 10, "auroc": 1.0, "positives": 1}
+    assert report["costly_budget"]["auroc"] is None  # no costly next step marked
+    d["next_cost"][0, [2, 17]] = 1  # a first entry (within budget) and the one too many
+    report = evaluate_streams(np.where(d["next_cost"] > 0, 0.5, 0.0), d, late=10)
+    assert report["costly_budget"] == {"auroc": 0.5, "positives": 1}  # not counting: a tie

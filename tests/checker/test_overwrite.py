@@ -17,7 +17,8 @@ from helpers.checker_cases import TINY
 
 import checker
 from checker import __main__ as checker_main
-from checker.trained import new_checker, params_sha256
+from checker.model import new_checker
+from checker.store import params_sha256
 from jaxgrid import rundir
 
 

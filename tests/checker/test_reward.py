@@ -55,7 +55,7 @@ def test_ring_buffer_across_auto_resets(episodes, replay):
 
 def test_violation_prob_table_path_matches_direct():
     # Initialised under jit: eager Flax initialisation compiles op by op.
-    new_checker = jax.jit(checker.trained.new_checker, static_argnums=0, compiler_options=CHEAP)
+    new_checker = jax.jit(checker.model.new_checker, static_argnums=0, compiler_options=CHEAP)
     tc = new_checker(TINY, jax.random.PRNGKey(2))
     table = sentence_table()
     n = table.shape[0] + 30  # larger than the table: the lookup path

@@ -1,16 +1,23 @@
-"""checker.train.train_checker: the tiny model separates a synthetic toy set; augmentations
-that would make labels inexact are skipped."""
+"""checker.train: the tiny window checker separates a synthetic toy set; augmentations that
+would make labels inexact are skipped; training a memory checker lowers its loss."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
+from helpers import checker_cases as cases
 from helpers.checker_cases import TINY
 
-from checker.metrics import evaluate
-from checker.train import CheckerTrainConfig, train_checker
+from checker.metrics import evaluate, predict_streams
+from checker.train import (
+    CheckerTrainConfig,
+    MemoryTrainConfig,
+    train_checker,
+    train_memory_checker,
+)
 from jaxgrid import language
 
 # --------------------------------------------------------------------------------- training
@@ -68,3 +75,22 @@ def test_lava_counterfactuals_recolour_door_and_lava_positives(toy):
     }  # fmt: skip
     assert rows[False] == len(train)
     assert rows[True] - rows[False] == int(train.labels.sum()) > 0
+
+
+# ------------------------------------------------------------------- the memory checker
+
+
+@pytest.mark.parametrize("actions", [False, True])
+def test_training_lowers_the_loss(streams, actions):
+    config = dataclasses.replace(cases.MEMORY_SMALL, actions=actions)
+    params, losses = train_memory_checker(
+        streams, config, MemoryTrainConfig(updates=40, batch_streams=8, lr=3e-3)
+    )
+    assert losses[-10:].mean() < losses[:5].mean()
+    probs = predict_streams(params, config, streams)
+    assert probs.shape == streams["label"].shape and ((probs >= 0) & (probs <= 1)).all()
+
+
+def test_too_many_streams_per_batch_is_refused(streams):
+    with pytest.raises(ValueError, match="batch_streams 64 exceeds the 16 streams"):
+        train_memory_checker(streams, cases.MEMORY_SMALL, MemoryTrainConfig(batch_streams=64))

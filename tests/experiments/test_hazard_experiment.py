@@ -4,6 +4,7 @@ policy; its command line, bad input before any compile, and the memory-checker p
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import jax
 import numpy as np
@@ -11,7 +12,10 @@ import pytest
 from helpers.cli_help import help_entries
 from helpers.experiment_runs import refused_before_any_compile
 
-from checker import memory as MC
+import checker
+from checker import memory_model as MM
+from checker.protocol import NO_ACTION
+from checker.train import MemoryTrainConfig
 from experiments import hazard_rooms, memory_phase, phases, pipeline, scheduling, two_rooms
 from experiments.pipeline import preset
 from experiments.report import CHECKER_METRICS
@@ -19,7 +23,7 @@ from jaxgrid import hazard_language as HL
 from jaxgrid.io import write_json
 
 MEMORY_FLAGS = {f"--memory-{n}" for n in ("streams", "steps", "updates", "batch-streams", "lr",
-                                          "positive-weight", "guided", "label")}  # fmt: skip
+                                          "positive-weight", "guided", "lookahead")}  # fmt: skip
 WINDOW_FLAGS = {"--behaviour-steps", "--checker-samples", "--checker-epochs", "--window",
                 "--lookahead"}  # fmt: skip
 
@@ -68,8 +72,8 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
     ):
         dataclasses.replace(preset(two_rooms.SCENARIO), shield_guided=0.5)
     # its checker learns the step into each frame; the window checkers' just-before label
-    assert cfg.memory_checker.label == "into"
-    assert preset(two_rooms.SCENARIO).memory_checker.label == "next"
+    assert cfg.memory_checker.lookahead == 0
+    assert preset(two_rooms.SCENARIO).memory_checker.lookahead == 1
     with pytest.raises(ValueError, match="ExperimentConfig.checker_kind must be one of"):
         dataclasses.replace(cfg, checker_kind="lstm")
     with pytest.raises(
@@ -89,6 +93,7 @@ def test_the_scenario_is_the_base_with_its_sentences_a_memory_checker_memory_and
         (["--memory-streams", "4"], "--memory-batch-streams (8) exceeds --memory-streams (4)"),
         (["--memory-lr", "0"], "--memory-lr must be > 0"),
         (["--memory-label", "before"], "--memory-label must be one of ('next', 'into')"),
+        (["--memory-lookahead", "2"], "--memory-lookahead must be one of (0, 1), got 2"),
         (["--shield-guided", "1.5"], "--shield-guided must be None or a share in [0, 1], got 1.5"),
     ],
 )
@@ -98,12 +103,32 @@ def test_bad_memory_flags_are_usage_errors_before_any_compile(
     refused_before_any_compile(hazard_rooms, tmp_path / "run", argv, message, capsys, compiles)
 
 
-def _saved_memory_checker(directory, label="next"):
-    small = MC.MemoryCheckerConfig(word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4,
+def test_the_former_label_flag_and_record_still_mean_their_lookahead(tmp_path):
+    """``--memory-label next|into`` is read as ``--memory-lookahead 1|0``, and a run directory
+    whose ``config.json`` records ``memory_checker.label`` resumes with the same lookahead."""
+    parse = lambda *argv: pipeline.parse_args([*argv, "--quick"], hazard_rooms.SCENARIO)  # noqa: E731
+    assert parse("--memory-label", "next").memory_checker.lookahead == 1
+    assert parse("--memory-label=into").memory_checker.lookahead == 0
+    cfg = dataclasses.replace(parse(), out=str(tmp_path / "run"))
+    phases.prepare_out(cfg)
+    path = tmp_path / "run" / "config.json"
+    record = json.loads(path.read_text())
+    record["memory_checker"] = {**record["memory_checker"], "label": "into"}
+    del record["memory_checker"]["lookahead"]
+    path.write_text(json.dumps(record))
+    phases.prepare_out(cfg)  # resumes
+    path.write_text(json.dumps({**record, "memory_checker": {**record["memory_checker"],
+                                                             "label": "next"}}))  # fmt: skip
+    with pytest.raises(ValueError, match="differs in memory_checker.lookahead"):
+        phases.prepare_out(cfg)
+
+
+def _saved_memory_checker(directory, lookahead=1):
+    small = MM.MemoryCheckerConfig(word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4,
                                    state_dim=8, memory_dim=16, mlp_dim=16)  # fmt: skip
-    trained = MC.new_memory_checker(small, jax.random.PRNGKey(0), env_id="HazardRooms-v0",
-                                    label=label)  # fmt: skip
-    MC.save(trained, directory)
+    trained = MM.new_memory_checker(small, jax.random.PRNGKey(0), env_id="HazardRooms-v0",
+                                    lookahead=lookahead)  # fmt: skip
+    checker.save(trained, directory)
     return trained
 
 
@@ -121,13 +146,13 @@ def test_a_memory_checker_of_the_other_label_is_refused_by_name(tmp_path):
     _saved_memory_checker(tmp_path / "next")
     cfg = preset(hazard_rooms.SCENARIO, "quick")
     cfg = dataclasses.replace(cfg, checker=str(tmp_path / "next"), out=str(tmp_path / "o"))
-    with pytest.raises(ValueError, match="trained with label 'next', and this run asks for "
-                                         "--memory-label 'into'"):  # fmt: skip
+    with pytest.raises(ValueError, match="trained with lookahead 1, and this run asks for "
+                                         "--memory-lookahead 0"):  # fmt: skip
         phases.load_reused(cfg)
 
 
 def _fake_streams(env, key, n, t, guided=0.0):
-    """Streams shaped as :func:`checker.memory.collect_streams`'s, without compiling the env."""
+    """Streams shaped as :func:`checker.data.collect_streams`'s, without compiling the env."""
     rng = np.random.default_rng(int(jax.random.randint(key, (), 0, 2**31 - 1)))
     starts = np.zeros((n, t), bool)
     starts[:, ::8] = True
@@ -136,7 +161,7 @@ def _fake_streams(env, key, n, t, guided=0.0):
     return {
         "frames": rng.integers(0, 6, (n, t, 7, 7, 3)).astype(np.uint8),
         "tokens": tokens, "starts": starts,
-        "action": np.where(starts, MC.NO_ACTION, rng.integers(0, MC.NO_ACTION, (n, t))),
+        "action": np.where(starts, NO_ACTION, rng.integers(0, NO_ACTION, (n, t))),
         "label": (rng.random((n, t)) < 0.2).astype(np.int32),
         "next_cost": (rng.random((n, t)) < 0.3).astype(np.float32),
         "cost": np.zeros((n, t), np.float32), "violation": np.zeros((n, t), np.int32),
@@ -150,10 +175,10 @@ def test_the_memory_phase_is_skipped_when_done_and_redone_when_damaged(
 ):
     """A matching checker and report are loaded, not retrained; a report of other parameters
     makes the phase run again (here on a tiny budget of made-up streams), with a message."""
-    monkeypatch.setattr(MC, "collect_streams", _fake_streams)
+    monkeypatch.setattr(memory_phase, "collect_streams", _fake_streams)
     cfg = dataclasses.replace(
         preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
-        memory_checker=MC.MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
+        memory_checker=MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
     )  # fmt: skip
     first, report = memory_phase.train_memory_checker(cfg, tmp_path)
     assert report["kind"] == "memory" and set(report["test"]) == set(CHECKER_METRICS)
@@ -168,10 +193,10 @@ def test_the_memory_phase_is_skipped_when_done_and_redone_when_damaged(
 def test_the_memory_phase_trains_a_checker_of_actions_when_asked(tmp_path, capsys, monkeypatch):
     """``checker_actions`` gives a checker that reads the action into each frame; a resume
     that asks otherwise retrains it, with a message."""
-    monkeypatch.setattr(MC, "collect_streams", _fake_streams)
+    monkeypatch.setattr(memory_phase, "collect_streams", _fake_streams)
     cfg = dataclasses.replace(
         preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
-        memory_checker=MC.MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
+        memory_checker=MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
         checker_actions=True,
     )  # fmt: skip
     trained, report = memory_phase.train_memory_checker(cfg, tmp_path)
@@ -187,11 +212,11 @@ def test_the_shields_own_checker_is_a_phase_of_its_own(tmp_path, capsys, monkeyp
     """``name`` and ``guided`` put a second checker beside the first, trained on other
     streams; a resume with another share of oracle actions retrains it, with a message."""
     shares = []
-    monkeypatch.setattr(MC, "collect_streams", lambda env, key, n, t, guided=0.0: (
+    monkeypatch.setattr(memory_phase, "collect_streams", lambda env, key, n, t, guided=0.0: (
         shares.append(guided) or _fake_streams(env, key, n, t)))  # fmt: skip
     cfg = dataclasses.replace(
         preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
-        memory_checker=MC.MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
+        memory_checker=MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
     )  # fmt: skip
     _, own = memory_phase.train_memory_checker(cfg, tmp_path, name="shield_checker", guided=0.5)
     assert shares == [0.5, 0.5]  # its training and test streams
@@ -253,13 +278,13 @@ def test_the_breakdown_finds_the_checker_each_mode_trained_with(tmp_path):
     of ``shield_checker/``, the other modes' those of ``checker/``."""
     from jax.flatten_util import ravel_pytree
 
-    from checker.trained import params_sha256
+    from checker.store import params_sha256
     from experiments import breakdown
 
-    first = _saved_memory_checker(tmp_path / "checker", label="into")
-    own = MC.new_memory_checker(first.config, jax.random.PRNGKey(1), env_id="HazardRooms-v0",
-                                label="into")  # fmt: skip
-    MC.save(own, tmp_path / "shield_checker")
+    first = _saved_memory_checker(tmp_path / "checker", lookahead=0)
+    own = MM.new_memory_checker(first.config, jax.random.PRNGKey(1), env_id="HazardRooms-v0",
+                                lookahead=0)  # fmt: skip
+    checker.save(own, tmp_path / "shield_checker")
     for mode, name in (("shield", "shield_checker"), ("checker", "checker")):
         (tmp_path / "modes" / mode).mkdir(parents=True)
         write_json(tmp_path / "modes" / mode / "run.json",

@@ -9,8 +9,8 @@ import dataclasses
 import jax
 import pytest
 
-from checker.model import CheckerConfig, init_params
-from checker.trained import TrainedChecker, save
+from checker.model import CheckerConfig, TrainedChecker, init_params
+from checker.store import save
 from experiments import phases, pipeline, two_rooms
 from experiments.pipeline import preset
 

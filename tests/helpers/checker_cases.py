@@ -1,15 +1,20 @@
 """Shared cases for the checker's tests: one deterministic TwoRooms rollout (collected by
 ``checker.collect_episodes`` and replayed step by step in Python), a synthetic toy set, and a
-tiny model configuration. ``tests/checker/conftest.py`` serves them as session fixtures, so a
-test process compiles the rollout and trains the toy checker once."""
+tiny model configuration of each kind; HazardRooms streams for the memory checker and
+hand-made ones. ``tests/checker/conftest.py`` serves them as session fixtures, so a test
+process compiles the rollouts and trains the toy checker once."""
 
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import checker
+import jaxgrid
 from checker import CheckerConfig, CheckerDataset, NoisyOracleParams, noisy_oracle_policy
+from checker.data import collect_streams
+from checker.memory_model import MemoryCheckerConfig
 from checker.train import CheckerTrainConfig, train_checker
 from helpers.xla import CHEAP
 from jaxgrid import language
@@ -23,6 +28,9 @@ TINY = CheckerConfig(
     window=3, word_dim=8, gru_dim=16, state_dim=16, cell_dim=8, conv_channels=8,
     temporal_channels=16, mlp_dim=32,
 )  # fmt: skip
+MEMORY_SMALL = MemoryCheckerConfig(
+    word_dim=8, gru_dim=8, cell_dim=4, conv_channels=4, state_dim=8, memory_dim=16, mlp_dim=16
+)
 
 
 def collect_episodes(env) -> dict[int, CheckerDataset]:
@@ -127,3 +135,51 @@ def train_toy(train: CheckerDataset):
     )  # fmt: skip
     trained, history, _ = train_checker(train, settings, model=TINY, progress=False)
     return trained, history
+
+
+def hazard_streams() -> dict:
+    """16 streams of 60 frames of HazardRooms under the random behaviour policy."""
+    return collect_streams(jaxgrid.make("HazardRooms-v0"), jax.random.PRNGKey(0), 16, 60)
+
+
+def random_frames(key, b, t):
+    """uint8 ``(b, t, 7, 7, 3)`` frames of random cells."""
+    k1, k2, k3 = jax.random.split(key, 3)
+    obj = jax.random.randint(k1, (b, t, 7, 7), 0, 11)
+    col = jax.random.randint(k2, (b, t, 7, 7), 0, 6)
+    st = jax.random.randint(k3, (b, t, 7, 7), 0, 3)
+    return jnp.stack([obj, col, st], -1).astype(jnp.uint8)
+
+
+def budget_streams(n, t):
+    """``n`` hand-made budget streams of ``t`` frames, each one episode with nothing in it."""
+    d = {
+        "starts": np.zeros((n, t), bool),
+        "cost": np.zeros((n, t)),
+        "violation": np.zeros((n, t), np.int32),
+        "label": np.zeros((n, t), np.int32),
+        "valid": np.ones((n, t), bool),
+        "ctype": np.full((n, t), 1),  # budget
+        "next_cost": np.zeros((n, t)),
+    }
+    d["starts"][:, 0] = True
+    return d
+
+
+def fake_streams(n, t):
+    """Streams shaped as :func:`checker.data.collect_streams`'s, random frames and labels."""
+    rng = np.random.default_rng(0)
+    starts = np.zeros((n, t), bool)
+    starts[:, 0] = True
+    return {
+        "frames": np.asarray(random_frames(jax.random.PRNGKey(6), n, t)),
+        "tokens": np.zeros((n, t, MEMORY_SMALL.max_len), np.int32),
+        "starts": starts,
+        "label": (rng.random((n, t)) < 0.2).astype(np.int32),
+        "cost": np.zeros((n, t)),
+        "violation": np.zeros((n, t), np.int32),
+        "ctype": np.ones((n, t), np.int32),
+        "template": np.zeros((n, t), np.int32),
+        "valid": np.ones((n, t), bool),
+        "next_cost": np.zeros((n, t)),
+    }

@@ -1,4 +1,4 @@
-"""checker.trained: save/load round trip (jittable with the checker as an argument) and clear
+"""checker.store: save/load round trip (jittable with the checker as an argument) and clear
 errors for missing files or another constraint vocabulary."""
 
 from __future__ import annotations
@@ -53,3 +53,24 @@ def test_missing_files_and_other_vocabulary(tmp_path, episodes, trained_toy):
     os.remove(tmp_path / "ck" / "params.msgpack")
     with pytest.raises(FileNotFoundError, match="params.msgpack"):
         checker.load(tmp_path / "ck")
+
+
+def test_every_record_names_its_kind_and_a_newer_format_is_refused(tmp_path, trained_toy):
+    """A window checker saved today records ``kind`` (one saved before records none and is a
+    window checker: ``tests/fixtures/checkers``); an unknown kind or a newer format than this
+    code reads is refused by name before anything is loaded."""
+    from checker.store import FORMAT_VERSION, checker_kind
+
+    out = tmp_path / "ck"
+    checker.save(trained_toy[0], out)
+    meta = json.loads((out / "config.json").read_text())
+    assert meta["kind"] == "window" and meta["format_version"] == FORMAT_VERSION
+    assert checker_kind(out) == "window"
+    newer = dict(format_version=FORMAT_VERSION + 1)
+    for change, message in ((dict(kind="lstm"), "unknown checker kind 'lstm'"),
+                            (newer, "newer than this code")):  # fmt: skip
+        (out / "config.json").write_text(json.dumps({**meta, **change}))
+        with pytest.raises(ValueError, match=message):
+            checker.load(out)
+        with pytest.raises(ValueError, match=message):
+            checker_kind(out)
