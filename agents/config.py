@@ -29,6 +29,10 @@ SHIELD_JUDGES = {"shield": "checker", "shield_monitor": "monitor"}
 class PPOConfig:
     """Everything that defines a training run (hashable, so it can be a static argument).
 
+    The defaults are the agents of the paper's experiments (``python -m experiments.two_rooms``
+    trains ``PPOConfig(env_id="TwoRooms-v0")`` in each reward mode); a scenario that needs
+    another value says so in its row of :data:`experiments.presets.EXPERIMENTS`.
+
     Reward modes (:data:`REWARD_MODES`): ``none`` env reward; ``shaped`` env reward minus
     ``penalty`` on every ground-truth violation (the paper's hand-shaped baseline);
     ``checker`` env reward minus ``penalty`` whenever the checker's violation probability for
@@ -87,11 +91,11 @@ class PPOConfig:
     env_id: str = "TwoRooms-v0"  # jaxgrid id of the environment
     # overrides passed to jaxgrid.make, as (name, value) pairs
     env_kwargs: tuple[tuple[str, Any], ...] = ()
-    num_envs: int = 256  # environments stepped in parallel
-    num_steps: int = 128  # rollout steps per environment per update
-    total_timesteps: int = 2_000_000  # env steps of the run, rounded down to whole chunks
+    num_envs: int = 128  # environments stepped in parallel
+    num_steps: int = 64  # rollout steps per environment per update
+    total_timesteps: int = 1_500_000  # env steps of the run, rounded down to whole chunks
     update_epochs: int = 4  # passes over each rollout
-    num_minibatches: int = 8  # minibatches per pass
+    num_minibatches: int = 4  # minibatches per pass
     lr: float = 1e-3  # Adam step size
     anneal_lr: bool = True  # anneal the step size linearly to 0 over the run
     gamma: float = 0.99  # discount
@@ -105,7 +109,9 @@ class PPOConfig:
     # policy's probability of blocked actions in the loss
     penalty: float = 1.0
     penalty_start: float = 0.0  # fraction of the run before the penalty acts (an ablation)
-    penalty_warmup: float = 0.1  # fraction of the run over which the penalty ramps up
+    # fraction of the run over which the penalty ramps up: a full penalty from the start stops
+    # agents before any door (docs/decisions.md)
+    penalty_warmup: float = 0.5
     # scale the penalty by the last update's training success rate over this value, capped
     # at 1 (0: off)
     penalty_gate: float = 0.0
@@ -115,12 +121,13 @@ class PPOConfig:
     # the alarm stays up (the ground truth counts a violation once, on entering)
     alarm_onset: bool = False
     # checker, lagrangian: charge an alarm to the next step of the episode if it moves forward
-    # (the step the alarm predicts a violation of), not to the step that raised it
-    alarm_forward: bool = False
+    # (the step the alarm predicts a violation of), not to the step that raised it: without
+    # it, checker agents stop before the doors (docs/decisions.md)
+    alarm_forward: bool = True
     cost_target: float = 0.05  # Lagrangian: alarms per episode to hold
     lagrangian_lr: float = 0.05  # Lagrangian: multiplier step size
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
-    novelty_bonus: float = 0.0  # episodic bonus per new (cell, carrying) pair, annealed to 0
+    novelty_bonus: float = 0.01  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
     # the bonus pays for (cell, carrying) pairs; False: for cells, whatever is carried
     novelty_carrying: bool = True
@@ -140,8 +147,9 @@ class PPOConfig:
     recurrent: bool = False
     cell_dim: int = 8  # features per view cell, which the sentence scales and shifts (FiLM)
     # the sentence also scales each view cell's one-hot object, colour and state codes before
-    # they are embedded, so that it can weigh one colour against the others directly
-    film_codes: bool = False
+    # they are embedded, so that it can weigh one colour against the others directly: without
+    # it, checker agents stop before the doors (docs/decisions.md)
+    film_codes: bool = True
     # a recurrent policy's heads read the step's observation features beside the memory,
     # not only through the GRU's gated update
     memory_skip: bool = False

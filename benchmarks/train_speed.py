@@ -140,6 +140,10 @@ def make_config(mode: str, sizes: dict, updates: int):
         **({"conv_channels": ()} if sizes.get("mlp") else {}),
         **({"cell_dim": sizes["cell_dim"]} if sizes.get("cell_dim") else {}),
         film_codes=bool(sizes.get("film_codes")),
+        # the speeds measured so far: no novelty bonus, alarms charged where raised
+        novelty_bonus=0.0,
+        alarm_forward=False,
+        penalty_warmup=0.1,
         # The LR schedule anneals over the timed updates; eval_every=1 allows tiny runs.
         total_timesteps=updates * sizes["num_envs"] * sizes["num_steps"],
         eval_every=1,

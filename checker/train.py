@@ -95,12 +95,13 @@ def check_window_scenario(env_id: str, command: str, why: str) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class CheckerTrainConfig:
-    """Every setting of :func:`train_checker`, validated on construction (``ValueError``)."""
+    """Every setting of :func:`train_checker`, validated on construction (``ValueError``);
+    the defaults are the checker of the paper's experiments."""
 
     window: int = 5  # observations per window, of the data and of the checker
     lookahead: int = 1  # windows are labelled by a violation this many steps ahead (1: next)
     seed: int = 0  # seeds the splits, the initialisation, the augmentations, the batch order
-    epochs: int = 60  # at most this many epochs
+    epochs: int = 40  # at most this many epochs
     batch_size: int = 128  # minibatch size; the training part must hold one
     lr: float = 2e-3  # AdamW's step size, cosine-decayed over the epochs
     weight_decay: float = 1e-4  # AdamW's weight decay
@@ -114,7 +115,9 @@ class CheckerTrainConfig:
     counterfactuals: int = 1
     # Also recolour door-and-lava positives whose next step enters the named door (exact only
     # at lookahead 1 and before the step, not in final windows; elsewhere they keep no copy).
-    lava_counterfactuals: bool = False
+    # With blocked and final_windows it removes the false alarms and misses that stopped
+    # agents or let them into lava (docs/decisions.md).
+    lava_counterfactuals: bool = True
     # Fraction of the training and validation rows copied with keys, balls and boxes strewn
     # over empty cells (checker.data.with_distractors), so the checker ignores objects no
     # constraint names; 0: none. Skipped, with a warning, above lookahead 1.
@@ -123,12 +126,12 @@ class CheckerTrainConfig:
     # door (checker.data.with_blocked_counterfactuals), so the checker tells an open door from
     # what cannot be entered; 0: none. Final windows get none. Skipped, with a warning, unless
     # lookahead is 1 (labels would not be exact) and the final windows are marked.
-    blocked: int = 0
+    blocked: int = 1
     # Also train on the windows that end at an episode's final observation, labelled by the
     # step that ended it (checker.data.streams, "Final windows"): the checker reward and the shield
     # score such windows, and where a violation ends the episode (lava) it is the only window
     # that shows the step into it.
-    final_windows: bool = False
+    final_windows: bool = True
 
     def __post_init__(self):
         try:
@@ -400,11 +403,12 @@ def train_checker(
 @dataclasses.dataclass(frozen=True)
 class MemoryTrainConfig:
     """Data and optimisation settings of a memory checker (:func:`train_memory_checker`;
-    ``streams`` and ``steps`` size what :func:`checker.data.collect_streams` gathers for it)."""
+    ``streams`` and ``steps`` size what :func:`checker.data.collect_streams` gathers for it);
+    the defaults are the memory checker of the HazardRooms experiment."""
 
-    streams: int = 1024  # streams collected, for training and again for the test
+    streams: int = 512  # streams collected, for training and again for the test
     steps: int = 160  # frames per stream
-    updates: int = 1500  # training updates
+    updates: int = 600  # training updates
     batch_streams: int = 16  # streams per update
     lr: float = 1e-3  # Adam step size
     positive_weight: float = 10.0  # violations are rare: weight their loss

@@ -25,31 +25,13 @@ import sys
 from pathlib import Path
 
 from checker import cli
-from checker.train import CheckerTrainConfig
 from experiments import phases, stats
-from experiments.pipeline import (
-    ExperimentConfig,
-    default_out,
-    override,
-    parse_args,
-    resume_command,
-    run_experiment,
-    scenario,
-)
+from experiments.pipeline import default_out, parse_args, resume_command, run_experiment
+from experiments.presets import EXPERIMENTS
 from jaxgrid import rundir
 from jaxgrid.io import write_json
 
-# Both arms without the options that exist only at lookahead 1 (the blocked and lava
-# counterfactuals label a copy by the next step) or that charge the step after an alarm
-# (after a violation, with "after" labels): otherwise the arms would differ in more than
-# the labels' timing.
-SCENARIO = override(scenario("label_timing", "TwoRooms-v0"), dict(
-    modes=("checker",), ppo=dict(alarm_forward=False),
-    checker_train=dict(blocked=0, lava_counterfactuals=False),
-))  # fmt: skip
-# The ablation sets these itself; a given --checker has one labelling, not the two compared.
-HIDDEN = {ExperimentConfig: {"modes": None, "checker": None},
-          CheckerTrainConfig: {"lookahead": None}}  # fmt: skip
+SCENARIO = EXPERIMENTS["label_timing"]  # both arms; their differences are in the row
 PROG = "python -m experiments.label_timing"
 LABELS = {1: "just before (lookahead 1)", 0: "after (lookahead 0)"}
 
@@ -92,7 +74,7 @@ def main(argv=None) -> dict:
     if any(a == "--checker" or a.startswith("--checker=") for a in argv):
         raise ValueError("--checker: label_timing trains one checker per labelling (lookahead "
                          "1 and 0) and compares them; a trained checker has one labelling")
-    cfg = parse_args(argv, SCENARIO, hide=HIDDEN)
+    cfg = parse_args(argv, SCENARIO)
     out = Path(cfg.out or default_out(cfg.experiment))
     arms = {}
     for k in LABELS:

@@ -26,13 +26,13 @@ phases after it check the checksum of what they were made from), or stops the ru
 status 2 and a message naming the file.
 
 An :class:`ExperimentConfig` holds the experiment's own sizes, the compared agents'
-:class:`~agents.config.PPOConfig` and the checker's :class:`~checker.train.CheckerTrainConfig`;
-each validates its own fields. Sizes come in three presets, overrides of :data:`BASE`:
-``--quick`` (smoke test, minutes), the default (meaningful results in at most about 30
-minutes on a 2-core CPU) and ``--paper`` (1e7 steps, 10 seeds). Every scenario runs the same
-:class:`~agents.config.PPOConfig`: only the env id and the step budgets differ. The command
-line is generated
-from the three dataclasses (:mod:`checker.cli`); ``--help`` lists every flag and its default.
+:class:`~agents.config.PPOConfig` and the checker's :class:`~checker.train.CheckerTrainConfig`
+(or :class:`~checker.memory.MemoryTrainConfig`); each validates its own fields, and their
+defaults are the experiments' settings. An experiment is a row of
+:data:`experiments.presets.EXPERIMENTS`, which names what it changes; the presets
+(``--quick``, the default, ``--paper``) are :data:`experiments.presets.PRESETS`, and
+:func:`preset` makes the configuration of a row in a preset. The command line is generated
+from the dataclasses (:mod:`checker.cli`); ``--help`` lists every flag and its default.
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ from agents.config import REWARD_MODES, PPOConfig, check_sweep
 from checker import cli
 from checker.train import CheckerTrainConfig, MemoryTrainConfig
 from experiments import assembly, memory_phase, phases, scheduling
+from experiments.presets import PRESETS, Experiment
 from jaxgrid import rundir
 
 CHECKER_KINDS = ("window", "memory")
@@ -78,7 +79,7 @@ Modes = Annotated[tuple[str, ...], PrimitiveConstructorSpec(
 class ExperimentConfig:
     """One experiment; every part is validated on construction (``ValueError``)."""
 
-    experiment: str = "two_rooms"  # names the outputs and selects STEP_BUDGETS (no flag)
+    experiment: str = "two_rooms"  # the row of experiments.presets: names the outputs (no flag)
     checker_env_id: str | None = None  # the checker's scenario; None: the agents' (no flag)
     out: str | None = None  # output directory; None: runs/<experiment>/<date-time>
     checker: str | None = None  # a trained checker's directory, reused (skips phases a-c)
@@ -108,30 +109,19 @@ class ExperimentConfig:
     # time the PureJaxRL-style baseline learner (agents.baseline) for ~30 s at the
     # end, and print its steps/s beside the run time: run times differ between machines
     machine_baseline: bool = True
-    # The compared agents' PPO (--steps: total_timesteps). Each run sets reward_mode and
-    # eval_every (from curve_points); the behaviour agent runs on checker_env_id for
-    # behaviour_steps with PPO's default entropy bonus, the novelty bonus only on env_id.
-    # The penalty acts from the first update and ramps up over the first half of training
-    # (docs/decisions.md: a full penalty from the start stops agents before any door). The
-    # sentence weighs each view cell's codes (film_codes) and an alarm charges the step it
-    # predicts (alarm_forward): without them, checker agents stop before the doors.
-    ppo: PPOConfig = PPOConfig(num_envs=128, num_steps=64, num_minibatches=4,
-                               total_timesteps=1_500_000, eval_every=1,
-                               novelty_bonus=0.01, penalty_warmup=0.5,
-                               film_codes=True, alarm_forward=True)  # fmt: skip
+    # The compared agents' PPO (--steps: total_timesteps), PPOConfig's defaults. Each run
+    # sets reward_mode and eval_every (from curve_points; 1 here lets any step budget
+    # validate); the behaviour agent runs on checker_env_id for behaviour_steps.
+    ppo: PPOConfig = PPOConfig(eval_every=1)
     # The checker's training (--checker-*): from --seed, and measured at the threshold at
-    # which the agents' checker alarms (--checker-threshold). The blocked and lava
-    # counterfactuals and the final windows remove the false alarms and the misses that
-    # stopped agents or let them into lava (docs/decisions.md).
-    checker_train: CheckerTrainConfig = CheckerTrainConfig(
-        epochs=40, blocked=1, lava_counterfactuals=True, final_windows=True
-    )
+    # which the agents' checker alarms (--checker-threshold).
+    checker_train: CheckerTrainConfig = CheckerTrainConfig()
     # "window": phases a-c above (the paper's); "memory": a recurrent checker trained on
     # streams of the agents' env under a random policy, for constraints that count
-    # (experiments.memory_phase; no flag, the scenario sets it)
+    # (experiments.memory_phase; no flag, the row sets it)
     checker_kind: str = "window"
     # The memory checker's data and training (--memory-*; checker_kind "memory" only)
-    memory_checker: MemoryTrainConfig = MemoryTrainConfig(streams=512, updates=600)
+    memory_checker: MemoryTrainConfig = MemoryTrainConfig()
     # The shield's own memory checker: trained as --memory-* say, but with this share of
     # oracle actions in its streams (--memory-guided); None: the shield uses the experiment's
     # checker. A shield pays for each false alarm with success, so it wants streams that go
@@ -240,36 +230,7 @@ class ExperimentConfig:
         return self.ppo.seed
 
 
-BASE = ExperimentConfig()  # the default preset, for TwoRooms
-# Presets: overrides of BASE (a dict overrides inside a nested config), then the experiment's
-# own step budgets in STEP_BUDGETS (first "all", then the preset's). Every scenario runs the
-# same PPOConfig; only the env id and the step budgets differ (docs/decisions.md).
-PRESETS: dict[str, dict] = {
-    # Meaningful results within about 30 minutes on a 2-core CPU.
-    "default": {},
-    # --quick: the outputs and their schema, in minutes; results mean nothing.
-    "quick": dict(quick=True, machine_baseline=False, seeds=2, behaviour_steps=8_192,
-                  checker_samples=512, collect_max_steps=256, curve_points=2, final_episodes=32,
-                  checker_train=dict(epochs=3),
-                  memory_checker=dict(streams=16, steps=48, updates=10, batch_streams=8),
-                  ppo=dict(total_timesteps=16_384, num_envs=32, eval_episodes=16)),
-    # --paper: the paper's budget (1e7 steps), 10 seeds, 50 evaluation episodes a checkpoint.
-    "paper": dict(paper=True, seeds=10, behaviour_steps=1_000_000, curve_points=40,
-                  checker_train=dict(epochs=60),
-                  ppo=dict(total_timesteps=10_000_000, num_envs=256)),
-}  # fmt: skip
-# TwoRooms-Lava and ThreeRooms-Key take longer to solve at all (lava's detour; key, locked
-# door and a second wall within 150 steps): 3M steps for Lava, with a behaviour agent that
-# meets doors and lava more often; 5M for ThreeRooms-Key, where at 3M one seed in three or
-# four never passed the locked door and at 5M none of 10 failed (docs/decisions.md).
-STEP_BUDGETS: dict[str, dict[str, dict]] = {
-    "two_rooms_lava": {
-        "default": dict(behaviour_steps=600_000, ppo=dict(total_timesteps=3_000_000)),
-    },
-    "three_rooms_key": {
-        "default": dict(ppo=dict(total_timesteps=5_000_000)),
-    },
-}
+BASE = ExperimentConfig()  # the default preset, before a row's env ids and changes
 
 
 def override(cfg, changes: dict):
@@ -278,17 +239,13 @@ def override(cfg, changes: dict):
     return dataclasses.replace(cfg, **{**changes, **nested})
 
 
-def scenario(experiment: str, env_id: str, checker_env_id: str | None = None):
-    """:data:`BASE` for ``experiment`` on ``env_id`` (its checker's on ``checker_env_id``),
-    before any preset: :func:`preset` makes the configurations that run."""
-    return override(BASE, dict(experiment=experiment, checker_env_id=checker_env_id,
-                               ppo=dict(env_id=env_id)))  # fmt: skip
-
-
-def preset(cfg: ExperimentConfig, name: str = "default") -> ExperimentConfig:
-    """``cfg`` (a :func:`scenario`) with preset ``name`` and its experiment's changes."""
-    own = STEP_BUDGETS.get(cfg.experiment, {})
-    for changes in (PRESETS[name], own.get("all", {}), own.get(name, {})):
+def preset(row: Experiment, name: str = "default") -> ExperimentConfig:
+    """The configuration of experiment ``row`` in preset ``name``: :data:`BASE` on the row's
+    env ids and checker kind, then the row's changes, the preset's and the row's budget."""
+    own = dict(experiment=row.name, checker_env_id=row.checker_env_id,
+               checker_kind=row.checker_kind, ppo=dict(env_id=row.env_id))  # fmt: skip
+    cfg = override(BASE, own)
+    for changes in (row.changes, PRESETS[name], row.budgets.get(name, {})):
         cfg = override(cfg, changes)
     return cfg
 
@@ -369,7 +326,9 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
 # Flags of the nested configs: PPO's are their own names, the checker's training ones
 # --checker-<name>; None: set by the pipeline, no flag.
 FLAGS: cli.Names = {
-    ExperimentConfig: {"experiment": None, "checker_env_id": None, "checker_kind": None},
+    # the nested configs' groups in --help (their flags keep the names below)
+    ExperimentConfig: {"experiment": None, "checker_env_id": None, "checker_kind": None,
+                       "ppo": "PPO", "checker_train": "checker", "memory_checker": "checker"},
     PPOConfig: {"total_timesteps": "steps", "env_id": None, "env_kwargs": None,
                 "reward_mode": None, "eval_every": None},
     CheckerTrainConfig: {**{f.name: f"checker_{f.name}"
@@ -379,24 +338,32 @@ FLAGS: cli.Names = {
     MemoryTrainConfig: {**{f.name: f"memory_{f.name}"
                            for f in dataclasses.fields(MemoryTrainConfig)}, "seed": None},
 }  # fmt: skip
-PHASES = {"window": "behaviour agent, checker data, checker",
-          "memory": "random-policy streams, memory checker"}  # fmt: skip
-# Flags that mean nothing for one kind of checker, hidden from its experiments' command line.
-UNUSED_FLAGS: dict[str, cli.Names] = {
-    "window": {MemoryTrainConfig: {f.name: None for f in dataclasses.fields(MemoryTrainConfig)},
-               ExperimentConfig: {"shield_guided": None, "checker_actions": None}},
-    "memory": {
-        ExperimentConfig: {"behaviour_steps": None, "checker_samples": None,
-                           "collect_max_steps": None, "collect_epsilon": None},
-        CheckerTrainConfig: {f.name: None for f in dataclasses.fields(CheckerTrainConfig)},
-    },
-}  # fmt: skip
 
 
-def parse_args(argv, scenario_cfg: ExperimentConfig, hide: cli.Names | None = None):
-    """The configuration of ``argv``: the preset ``--quick``/``--paper`` names (default: the
-    default) of ``scenario_cfg``, then every flag given. ``hide`` removes more flags."""
-    prog = f"python -m experiments.{scenario_cfg.experiment}"
+def hidden_flags(row: Experiment) -> cli.Names:
+    """``row.hidden`` as :func:`checker.cli.parse` names: a field of :class:`ExperimentConfig`
+    (a nested part: every field of it), or ``"part.field"``."""
+    parts = {f.name: f.type for f in dataclasses.fields(ExperimentConfig)}
+    nested = {"ppo": PPOConfig, "checker_train": CheckerTrainConfig,
+              "memory_checker": MemoryTrainConfig}  # fmt: skip
+    names: dict = {}
+    for item in row.hidden:
+        part, _, field = item.partition(".")
+        if part not in parts:
+            raise ValueError(f"Experiment {row.name}.hidden: {item!r} names no setting")
+        if part in nested:
+            cls = nested[part]
+            fields = [field] if field else [f.name for f in dataclasses.fields(cls)]
+            names.setdefault(cls, {}).update(dict.fromkeys(fields))
+        else:
+            names.setdefault(ExperimentConfig, {})[part] = None
+    return names
+
+
+def parse_args(argv, row: Experiment):
+    """The configuration of ``argv``: experiment ``row`` in the preset ``--quick``/``--paper``
+    name (default: the default), then every flag given; ``row.hidden`` has no flag."""
+    prog = f"python -m experiments.{row.name}"
     argv = cli.label_flags(sys.argv[1:] if argv is None else argv, "--memory-label",
                            "--memory-lookahead", prog)  # fmt: skip
     pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
@@ -404,14 +371,13 @@ def parse_args(argv, scenario_cfg: ExperimentConfig, hide: cli.Names | None = No
         pre.add_argument(f"--{name}", action=argparse.BooleanOptionalAction, default=False)
     chosen, _ = pre.parse_known_args(argv)
     name = "quick" if chosen.quick and not chosen.paper else "paper" if chosen.paper else ""
-    hide = {**UNUSED_FLAGS[scenario_cfg.checker_kind], **(hide or {})}
+    hide = hidden_flags(row)
     names = {cls: {**FLAGS.get(cls, {}), **hide.get(cls, {})} for cls in FLAGS.keys() | hide}
-    exp = scenario_cfg.experiment
     return cli.parse(
-        ExperimentConfig, argv, default=preset(scenario_cfg, name or "default"), names=names,
-        prog=prog, description=f"{exp}: the paper's experiment on "
-        f"{scenario_cfg.env_id} ({PHASES[scenario_cfg.checker_kind]}, PPO in every reward "
-        "mode, report). --quick and --paper change the defaults shown here.",
+        ExperimentConfig, argv, default=preset(row, name or "default"), names=names,
+        prog=prog, description=f"{row.name}: the paper's experiment on {row.env_id} "
+        f"({row.phases}, PPO in every reward mode, report). --quick and --paper change the "
+        "defaults shown here.",
     )  # fmt: skip
 
 
@@ -420,8 +386,9 @@ def default_out(experiment: str) -> str:
     return os.path.join("runs", experiment, stamp)
 
 
-def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
-    """Entry point of the scenario modules; Ctrl-C keeps finished phases for a resume.
+def main(row: Experiment, argv=None) -> dict | None:
+    """Run experiment ``row`` with ``argv`` (default ``sys.argv[1:]``); Ctrl-C keeps finished
+    phases for a resume.
 
     Bad flags exit with status 2 before anything compiles. ``--out`` is locked for the whole
     run (:func:`jaxgrid.rundir.lock`): a second process on it exits with status 2 at once,
@@ -438,7 +405,7 @@ def main(scenario_cfg: ExperimentConfig, argv=None) -> dict | None:
     except rundir.LockHeld as e:
         print(f"error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
-    cfg = parse_args(argv, scenario_cfg)
+    cfg = parse_args(argv, row)
     if cfg.quick:  # a smoke test is all compile time: cheaper compiles (LLVM's optimisations
         # off, XLA:CPU's per-op emitters; float results may differ in the last place). XLA
         # reads the flags when the CPU backend starts.

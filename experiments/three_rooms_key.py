@@ -1,15 +1,15 @@
 """ThreeRooms-Key with the TwoRooms checker (the paper's generalisation experiment).
 
-Run ``python -m experiments.three_rooms_key [--quick | --paper] [--out DIR]``.
-
-See :mod:`experiments.pipeline` for the phases, the outputs and the presets
-(``preset(SCENARIO, name)``), and ``--help`` for the flags.
+Run ``python -m experiments.three_rooms_key [--quick | --paper] [--out DIR]``: the row
+``EXPERIMENTS["three_rooms_key"]`` of :mod:`experiments.presets`, run by
+:func:`experiments.pipeline.main` (phases, outputs, presets); ``--help`` lists the flags.
 """
 
 from checker.cli import run_main
-from experiments.pipeline import main, scenario
+from experiments.pipeline import main
+from experiments.presets import EXPERIMENTS
 
-SCENARIO = scenario("three_rooms_key", "ThreeRoomsKey-v0", "TwoRooms-v0")
+SCENARIO = EXPERIMENTS["three_rooms_key"]
 
 if __name__ == "__main__":
     run_main(lambda: main(SCENARIO), "python -m experiments.three_rooms_key")

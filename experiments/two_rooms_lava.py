@@ -1,15 +1,15 @@
 """TwoRooms-Lava (the paper's 2Rooms-Lava).
 
-Run ``python -m experiments.two_rooms_lava [--quick | --paper] [--out DIR]``.
-
-See :mod:`experiments.pipeline` for the phases, the outputs and the presets
-(``preset(SCENARIO, name)``), and ``--help`` for the flags.
+Run ``python -m experiments.two_rooms_lava [--quick | --paper] [--out DIR]``: the row
+``EXPERIMENTS["two_rooms_lava"]`` of :mod:`experiments.presets`, run by
+:func:`experiments.pipeline.main` (phases, outputs, presets); ``--help`` lists the flags.
 """
 
 from checker.cli import run_main
-from experiments.pipeline import main, scenario
+from experiments.pipeline import main
+from experiments.presets import EXPERIMENTS
 
-SCENARIO = scenario("two_rooms_lava", "TwoRoomsLava-v0")
+SCENARIO = EXPERIMENTS["two_rooms_lava"]
 
 if __name__ == "__main__":
     run_main(lambda: main(SCENARIO), "python -m experiments.two_rooms_lava")

@@ -139,6 +139,7 @@ def test_training_does_not_depend_on_the_evaluation_schedule():
 ANNEALED = PPOConfig(
     num_envs=8, num_steps=8, total_timesteps=183 * 64 + 17, update_epochs=2, num_minibatches=2,
     eval_every=10, novelty_bonus=0.3, penalty=0.7, penalty_start=0.9, penalty_warmup=0.1,
+    film_codes=False, alarm_forward=False,
 )  # fmt: skip
 # What a training run compiles with (the suite's default is cheaper, see tests/conftest.py).
 OPTIMISED = {"xla_backend_optimization_level": 3}

@@ -99,7 +99,8 @@ def test_train_checker_splits_as_its_config_says():
     data, _ = toy_split()
     settings = CheckerTrainConfig(window=TINY.window, epochs=1, batch_size=64, test_fraction=0.2,
                                   val_fraction=0.1, counterfactuals=0, distractors=0,
-                                  threshold=0.4)  # fmt: skip
+                                  threshold=0.4, blocked=0, lava_counterfactuals=False,
+                                  final_windows=False)  # fmt: skip
     trained, history, test = train_checker(data, settings, model=TINY, progress=False)
     n, positives = len(data), int(data.labels.sum())
     assert len(test) == history["test_rows"] == pytest.approx(0.2 * n, abs=2)

@@ -80,7 +80,7 @@ def test_memory_help_lists_every_flag_with_its_default(capsys):
     assert flags <= set(entries), sorted(entries)
     missing = [f for f, text in entries.items() if f != "--help" and "(default:" not in text]
     assert not missing, missing
-    assert "(default:1024)" in squeezed(entries["--envs"])
+    assert "(default:512)" in squeezed(entries["--envs"])
 
 
 @pytest.mark.parametrize(

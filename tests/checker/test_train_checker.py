@@ -37,10 +37,10 @@ def test_blocked_counterfactuals_only_where_labels_stay_exact(toy):
     already entered the cell, get none, and unmarked final windows skip it with a warning."""
     train = toy[0].subset(np.arange(len(toy[0])))
     base = dict(window=TINY.window, epochs=1, batch_size=64, test_fraction=0.0, val_fraction=0.0,
-                counterfactuals=0, distractors=0)  # fmt: skip
+                counterfactuals=0, distractors=0, lava_counterfactuals=False)  # fmt: skip
     rows = {
-        b: train_checker(train, CheckerTrainConfig(**base, blocked=b), model=TINY,
-                         progress=False)[1]["train_rows"]
+        b: train_checker(train, CheckerTrainConfig(**base, blocked=b, final_windows=False),
+                         model=TINY, progress=False)[1]["train_rows"]
         for b in (0, 1)
     }  # fmt: skip
     assert rows[1] - rows[0] == int(train.labels.sum()) > 0
@@ -67,7 +67,7 @@ def test_lava_counterfactuals_recolour_door_and_lava_positives(toy):
     train.tokens = np.stack([sentences.PAPER.tokenize(sentences.render(int(t), c))
                              for t, c in zip(train.template_id, said, strict=True)])  # fmt: skip
     base = dict(window=TINY.window, epochs=1, batch_size=64, test_fraction=0.0, val_fraction=0.0,
-                distractors=0)  # fmt: skip
+                distractors=0, blocked=0, final_windows=False)  # fmt: skip
     rows = {
         lava: train_checker(train, CheckerTrainConfig(**base, lava_counterfactuals=lava),
                             model=TINY, progress=False)[1]["train_rows"]

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 
 import pytest
 from helpers.cli_help import help_entries, squeezed
@@ -15,8 +16,17 @@ from helpers.experiment_runs import check_outputs, quick, refused_before_any_com
 
 from agents.config import REWARD_MODES, PPOConfig
 from checker.train import CheckerTrainConfig
-from experiments import label_timing, phases, pipeline, three_rooms_key, two_rooms, two_rooms_lava
-from experiments.pipeline import BASE, PRESETS, STEP_BUDGETS, ExperimentConfig, preset
+from experiments import (
+    hazard_rooms,
+    label_timing,
+    phases,
+    pipeline,
+    three_rooms_key,
+    two_rooms,
+    two_rooms_lava,
+)
+from experiments.pipeline import BASE, ExperimentConfig, preset
+from experiments.presets import EXPERIMENTS, PRESETS
 
 SCENARIOS = {"two_rooms": two_rooms, "two_rooms_lava": two_rooms_lava,
              "three_rooms_key": three_rooms_key}  # fmt: skip
@@ -40,19 +50,25 @@ def test_experiment_config_declares_no_ppo_or_checker_setting_again():
 @pytest.mark.parametrize("name", list(PRESETS))
 @pytest.mark.parametrize("experiment", list(SCENARIOS))
 def test_preset_is_the_base_plus_its_overrides(experiment, name):
-    """A preset differs from its scenario's base exactly where its overrides say, to the
-    overrides' values (the experiment's own changes last)."""
-    scenario = SCENARIOS[experiment].SCENARIO
-    expected = {}
-    own = STEP_BUDGETS.get(experiment, {})
-    for changes in (PRESETS[name], own.get("all", {}), own.get(name, {})):
+    """A preset differs from the base exactly where its row and the preset say, to their
+    values (the row's step budget last)."""
+    row = SCENARIOS[experiment].SCENARIO
+    assert row is EXPERIMENTS[experiment]
+    expected = {"experiment": experiment, "ppo.env_id": row.env_id,
+                "checker_env_id": row.checker_env_id or row.env_id}  # fmt: skip
+    for changes in (row.changes, PRESETS[name], row.budgets.get(name, {})):
         expected.update(_flat_changes(changes))
-    got, base = _flat(preset(scenario, name)), _flat(scenario)
+    got, base = _flat(preset(row, name)), _flat(BASE)
     assert {k for k in got if got[k] != base[k]} == {k for k in expected if expected[k] != base[k]}
     assert {k: got[k] for k in expected} == expected
-    assert _flat(scenario) == {**_flat(BASE), "experiment": experiment,
-                               "checker_env_id": scenario.checker_env_id,
-                               "ppo.env_id": scenario.env_id}  # fmt: skip
+
+
+def test_ppo_defaults_are_the_two_rooms_agents():
+    """``PPOConfig(env_id="TwoRooms-v0")`` (docs/training.md) trains the TwoRooms experiment's
+    agents: the default preset's run differs in reward mode and evaluation schedule only."""
+    for mode in REWARD_MODES:
+        run = phases.ppo_config(preset(two_rooms.SCENARIO), mode)
+        assert run == PPOConfig(env_id="TwoRooms-v0", reward_mode=mode, eval_every=run.eval_every)
 
 
 def _flat_changes(changes: dict, prefix: str = "") -> dict:
@@ -158,6 +174,14 @@ def _help(capsys, argv, scenario, **kw) -> str:
     return capsys.readouterr().out
 
 
+def test_help_groups_the_flags_experiment_ppo_checker(capsys):
+    """The experiment's own flags, then PPO's, then the checker's, each under its title."""
+    for module in (two_rooms, hazard_rooms):
+        text = _help(capsys, [], module.SCENARIO)
+        titles = re.findall(r"^\W*((?:PPO |checker )?options)\W*$", text, re.M)
+        assert titles == ["options", "PPO options", "checker options"], titles
+
+
 def test_every_flag_shows_its_default_and_presets_change_them(capsys):
     entries = help_entries(_help(capsys, [], two_rooms.SCENARIO))
     todays = ("out checker modes seeds steps behaviour-steps checker-samples checker-epochs "
@@ -200,7 +224,7 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
     quick_help = help_entries(_help(capsys, ["--quick"], three_rooms_key.SCENARIO))
     assert "(default: 16384)" in quick_help["--steps"]
     assert "(default: 0.01)" in quick_help["--novelty-bonus"]
-    timing = help_entries(_help(capsys, [], label_timing.SCENARIO, hide=label_timing.HIDDEN))
+    timing = help_entries(_help(capsys, [], label_timing.SCENARIO))
     assert "--lookahead" not in timing and "--modes" not in timing and "--window" in timing
 
 

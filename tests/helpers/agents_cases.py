@@ -20,7 +20,8 @@ from checker.model import CheckerConfig
 
 TINY = PPOConfig(
     num_envs=8, num_steps=8, total_timesteps=8 * 8 * 4, update_epochs=1, num_minibatches=2,
-    eval_every=2, eval_episodes=4, penalty_start=0.0, penalty_warmup=0.0,
+    eval_every=2, eval_episodes=4, penalty_start=0.0, penalty_warmup=0.0, novelty_bonus=0.0,
+    film_codes=False, alarm_forward=False,
 )  # fmt: skip
 # A small checker (window of 3 frames) with the scenarios' 5x5 view.
 CHECKER_CONFIG = CheckerConfig(

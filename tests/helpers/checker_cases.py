@@ -133,7 +133,8 @@ def train_toy(train: CheckerDataset):
     """``(TrainedChecker, history)`` of the tiny model on the toy training split."""
     settings = CheckerTrainConfig(
         window=TINY.window, lookahead=1, seed=0, lr=3e-3, batch_size=64, epochs=25,
-        patience=25, test_fraction=0.0,
+        patience=25, test_fraction=0.0, blocked=0, lava_counterfactuals=False,
+        final_windows=False,
     )  # fmt: skip
     trained, history, _ = train_checker(train, settings, model=TINY, progress=False)
     return trained, history
