@@ -1,5 +1,7 @@
 """Environment throughput on MiniGrid-DoorKey-8x8: jaxgrid vs NAVIX, XLand-MiniGrid, minigrid.
 
+One thing, one benchmark's harness for four libraries and its report, hence its length.
+
 Protocol: uniform random actions drawn inside the scan with ``jax.random``, auto-reset,
 ``jax.jit`` of a function that runs ``jax.lax.scan`` over T steps of ``jax.vmap(step)`` over N
 envs. Every JAX library runs the identical harness (:func:`agents.timing.measure`):

@@ -1,5 +1,7 @@
 """Training throughput of the fused PPO, per reward mode, against the PureJaxRL-style baseline.
 
+One thing, one benchmark's protocol, configurations and report, hence its length.
+
 ``python -m benchmarks.train_speed`` prints one JSON line per reward mode::
 
     {"mode": "checker", "sps": ..., "compile_s": ..., "device": ..., "baseline_sps": ...,

@@ -1,5 +1,7 @@
 """``HazardRooms-v0``: four rooms with costly hazards, under a rich language constraint.
 
+One thing, a single environment (layout, constraint draw and its retry loop), hence its length.
+
 A grid (13x13 for the registered id, 9x9 at least) split into four rooms by a cross of
 walls, with one closed door in each of the four wall segments (four distinct colours of the
 five non-green ones). The agent starts in one room and the goal lies in the opposite one, so

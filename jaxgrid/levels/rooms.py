@@ -1,5 +1,7 @@
 """MiniGrid's MultiRoom, LockedRoom and RedBlueDoors levels, generated natively.
 
+One thing, the room-chain levels of MiniGrid, each a faithful generator, hence its length.
+
 Each ``generate`` mirrors the ``_gen_grid`` of the MiniGrid class it names; the comments quote
 the MiniGrid call each line reproduces. A rejection-sampled ``place_obj``/``place_agent`` is the
 uniform distribution over the cells it accepts and is drawn directly, a shuffle of colours is
