@@ -122,13 +122,7 @@ def _append(dataset: CheckerDataset, extra: CheckerDataset, rng, counter: str) -
     }
     extras = {k: np.concatenate([v, extra.extras[k]])[order] for k, v in dataset.extras.items()}
     out = CheckerDataset(**merged, extras=extras, meta=dict(dataset.meta))
-    out.meta.update(
-        num_samples=len(out),
-        num_positive=int(np.sum(out.labels)),
-        positive_fraction=out.positive_fraction,
-        **{counter: len(extra) + int(dataset.meta.get(counter, 0))},
-    )
-    return out
+    return out.counted(**{counter: len(extra) + int(dataset.meta.get(counter, 0))})
 
 
 def with_blocked_counterfactuals(

@@ -73,11 +73,14 @@ class CheckerDataset:
         index = np.asarray(index)
         arrays = {name: getattr(self, name)[index] for name in CORE}
         extras = {k: v[index] for k, v in self.extras.items()}
-        meta = dict(self.meta)
-        meta["num_samples"] = int(len(arrays["labels"]))
-        meta["num_positive"] = int(np.sum(arrays["labels"]))
-        meta["positive_fraction"] = float(np.mean(arrays["labels"])) if len(index) else 0.0
-        return CheckerDataset(**arrays, extras=extras, meta=meta)
+        return CheckerDataset(**arrays, extras=extras, meta=dict(self.meta)).counted()
+
+    def counted(self, **more) -> CheckerDataset:
+        """This dataset with its metadata's counts (rows, positives, positive share) set from
+        its rows, and ``more`` beside them; updated in place and returned."""
+        self.meta.update(num_samples=len(self), num_positive=int(np.sum(self.labels)),
+                         positive_fraction=self.positive_fraction, **more)  # fmt: skip
+        return self
 
     def split(self, fractions: Sequence[float], seed: int = 0) -> tuple[CheckerDataset, ...]:
         """Random disjoint parts of sizes ``fractions`` (summing to 1).

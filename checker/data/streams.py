@@ -372,13 +372,7 @@ def collect(
         meta["final_windows_drawn"] = int(np.sum(is_final))
         meta["final_windows_positive"] = int(np.sum(labels_np[t_sel, e_sel] & is_final))
         extras["final"] = is_final[perm]  # which rows end after their labelled step
-    ds = CheckerDataset(**arrays, extras=extras, meta=meta)
-    ds.meta.update(
-        num_samples=len(ds),
-        num_positive=int(np.sum(ds.labels)),
-        positive_fraction=ds.positive_fraction,
-    )
-    return ds
+    return CheckerDataset(**arrays, extras=extras, meta=meta).counted()
 
 
 def collect_episodes(
