@@ -28,6 +28,7 @@ from helpers.experiment_runs import check_outputs
 import checker as chk
 from agents.runner import NonFiniteError
 from agents.runner import run as run_ppo
+from checker.store import params_sha256
 from experiments import assembly, phases, pipeline, provenance, two_rooms
 from jaxgrid import rundir
 from jaxgrid.io import read_json, read_jsonl
@@ -186,7 +187,7 @@ def test_checker_is_trained_again(run_copy, capsys, name, how):
     damage(out / name, how)
     trained, report = phases.train_checker(cfg, out, state["data"], state["behaviour"])
     assert_redone(capsys, "c. checker", Path(name).name)
-    assert report["params_sha256"] == chk.trained.params_sha256(out / "checker")
+    assert report["params_sha256"] == params_sha256(out / "checker")
     assert read_json(out / "checker.json")["params_sha256"] == report["params_sha256"]
     assert same_tree(chk.load(out / "checker").params, trained.params)
 

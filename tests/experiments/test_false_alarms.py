@@ -10,6 +10,7 @@ from helpers.checker_cases import TINY
 
 import checker as chk
 import jaxgrid
+from checker.model import new_checker
 from experiments import false_alarms
 from jaxgrid.constants import BLUE, CLOSED, DOOR, EMPTY, KEY, LOCKED, OPEN, RED
 
@@ -25,7 +26,7 @@ def test_front_groups_name_doors_by_state_and_sentence():
 
 def test_counts_add_up(tmp_path):
     """An untrained checker with its threshold at the median score of the same windows."""
-    untrained = chk.trained.new_checker(TINY, jax.random.PRNGKey(0), env_id="TwoRooms-v0")
+    untrained = new_checker(TINY, jax.random.PRNGKey(0), env_id="TwoRooms-v0")
     oracle = chk.NoisyOracleParams(epsilon=0.2, ignore_prob=0.5, seek_prob=0.0)
     data = chk.collect(jaxgrid.make("TwoRooms-v0"), chk.noisy_oracle_policy, oracle,
                        jax.random.PRNGKey(3), None, TINY.window, 1, 8, balance=False,
@@ -58,7 +59,7 @@ def test_counts_add_up(tmp_path):
 )
 def test_bad_input_names_the_field(tmp_path, field, value):
     path = tmp_path / "checker"
-    chk.save(chk.trained.new_checker(TINY, jax.random.PRNGKey(0)), path)
+    chk.save(new_checker(TINY, jax.random.PRNGKey(0)), path)
     kwargs = {"checker": str(path), field: value}
     with pytest.raises(ValueError, match=f"FalseAlarmConfig.{field}"):
         false_alarms.FalseAlarmConfig(**kwargs)
