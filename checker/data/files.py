@@ -12,8 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from checker.store import check_vocab
-from jaxgrid import sentences
+from checker.store import check_vocab, vocab_meta
 from jaxgrid.io import atomic_write, read_json, write_json
 from jaxgrid.rundir import sha256_bytes, sha256_file
 
@@ -138,8 +137,7 @@ class CheckerDataset:
             "format_version": FORMAT_VERSION,
             "npz_sha256": sha256_bytes(buf.getvalue()),
             **self.meta,
-            "vocab": list(sentences.PAPER.vocab),
-            "max_len": sentences.PAPER.max_len,
+            **vocab_meta(),
         }
         write_json(js, meta)
         return npz, js
