@@ -17,7 +17,9 @@ of :mod:`jaxgrid.oracle` in one of three *modes* chosen once per episode:
   goes through the forbidden door whenever one is present (in walls with a single door it
   plays ``ignore``).
 
-and takes a uniformly random action with probability ``epsilon`` at every step. The mix gives
+(on a paper scenario, whose constraint forbids a door colour; elsewhere it always plans as
+the plain oracle) and takes a uniformly random action with probability ``epsilon`` at every
+step. The mix gives
 both positives (agents about to enter a forbidden door) and hard negatives (agents about to
 enter an allowed door, or walking past a forbidden one). The per-episode mode is drawn from
 a hash of what stays fixed during an episode (door positions and colours, the goal, the
@@ -33,6 +35,7 @@ from flax import struct
 
 from jaxgrid.constants import DOOR, LOCKED, NUM_ACTIONS
 from jaxgrid.oracle import oracle_action
+from jaxgrid.scenarios import ScenarioExtras
 
 __all__ = ["NoisyOracleParams", "noisy_oracle_policy", "random_policy", "with_random_actions"]
 
@@ -80,20 +83,19 @@ def _hash_weights(shape: tuple[int, int]) -> np.ndarray:
 def episode_uniform(state, salt) -> jax.Array:
     """A uniform in [0, 1) fixed for the whole episode of one (unbatched) scenario ``state``.
 
-    Hashes door positions and colours (door *states* change, so they are left out), the goal
-    position and the constraint; agent pose and carried objects change and are left out too.
+    Hashes door positions and colours (door *states* change, so they are left out), and of a
+    paper scenario's state (:class:`~jaxgrid.scenarios.ScenarioExtras`) the constraint and
+    the goal position; agent pose and carried objects change and are left out too.
     """
     g = state.grid
     door = g[..., 0] == DOOR
     feat = jnp.where(door, g[..., 1].astype(jnp.uint32) + 1, 0).astype(jnp.uint32)
     h = jnp.sum(feat * jnp.asarray(_hash_weights(g.shape[:2])), dtype=jnp.uint32)
     extras = state.extras
-    constraint = getattr(extras, "constraint", None)
-    if constraint is not None:
+    if isinstance(extras, ScenarioExtras):
+        constraint, goal = extras.constraint, extras.goal_pos
         h = h * jnp.uint32(0x9E3779B1) + constraint.template_id.astype(jnp.uint32)
         h = h * jnp.uint32(0x85EBCA77) + constraint.door_colour.astype(jnp.uint32)
-    goal = getattr(extras, "goal_pos", None)
-    if goal is not None:
         h = (
             h * jnp.uint32(0xC2B2AE3D)
             + goal[0].astype(jnp.uint32) * 64
@@ -117,11 +119,11 @@ def _seek_colour(state):
 
 
 def _oracle_one(params: NoisyOracleParams, state, key):
-    constraint = getattr(state.extras, "constraint", None)
     k_eps, k_act = jax.random.split(key)
-    if constraint is None:
+    if not isinstance(state.extras, ScenarioExtras):  # no forbidden door colour to play with
         greedy = oracle_action(state)
     else:
+        constraint = state.extras.constraint
         u = episode_uniform(state, params.salt)
         ignore = u < params.ignore_prob
         seek = (u >= params.ignore_prob) & (u < params.ignore_prob + params.seek_prob)
