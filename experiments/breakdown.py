@@ -32,7 +32,7 @@ import checker as chk
 from agents.runner import load_agents
 from checker import cli
 from checker.store import check_writable_file, params_sha256
-from experiments.memory_phase import SHIELD_CHECKER
+from experiments.checker_phases import SHIELD_CHECKER
 from jaxgrid import language
 from jaxgrid.constants import DOOR, EMPTY, WALL
 from jaxgrid.io import read_json, write_json

@@ -1,13 +1,17 @@
-"""The phases of :mod:`experiments.pipeline`, each resumable from its artefact in ``--out``.
+"""The phases of :mod:`experiments.pipeline` around the checker, each resumable from its
+artefact in ``--out``: the run directory and its configuration, the agents of every reward
+mode (d, e) and the GIF.
 
 Kept apart from the pipeline so that :func:`experiments.pipeline.run_experiment` reads as the
-list of phases; which phase runs when, in which thread, is :mod:`experiments.scheduling`, and
-phase f (the results and their files) is :mod:`experiments.assembly`. Every phase returns what
-the next needs and, when its artefact already exists, loads it instead of recomputing it. An
-artefact that is damaged (its checksum, JSON or records fail) or was made from other inputs
-(the checker's report names the checksums of its data and parameters, a PPO run the
-checker's) is made again by its phase, with a message on stderr: safe, since every phase is
-deterministic given its inputs."""
+list of phases; the checker's phases (a-c, per kind of checker) are
+:mod:`experiments.checker_phases`, which phase runs when, in which thread,
+:mod:`experiments.scheduling`, and phase f (the results and their files)
+:mod:`experiments.assembly`. Every phase returns what the next needs and, when its artefact
+already exists, loads it instead of recomputing it. An artefact that is damaged (its
+checksum, JSON or records fail) or was made from other inputs (the checker's report names
+the checksums of its data and parameters, a PPO run the checker's) is made again by its
+phase, with a message on stderr: safe, since every phase is deterministic given its
+inputs."""
 
 from __future__ import annotations
 
@@ -19,26 +23,18 @@ from typing import Protocol
 
 import jax
 
-import checker as chk
-import jaxgrid
 from agents.checkpoint import ResumeError
 from agents.config import PPOConfig
 from agents.networks import start_memory
 from agents.runner import run as run_ppo
 from agents.train import make_learner
 from checker.protocol import LABEL_LOOKAHEADS
-from checker.store import params_sha256
 from experiments import provenance
-from experiments.report import checker_rates
 from jaxgrid.io import holds_declared_default, read_json, to_jsonable, write_json
 
-HELDOUT_FRACTION = 4  # held-out / transfer sets are checker_samples // 4 windows
-
-
 __all__: list[str] = ["prepare_out", "ppo_config", "behaviour_config", "config_dict", "redo",
-                      "AgentPolicy", "behaviour_agent", "checker_data", "train_checker",
-                      "load_reused", "reuse_checker", "mode_arguments", "Precompiled",
-                      "train_agents", "write_gif"]  # fmt: skip
+                      "resumed_run", "mode_arguments", "Precompiled", "train_agents",
+                      "write_gif"]  # fmt: skip
 
 
 def config_dict(cfg) -> dict:
@@ -52,7 +48,7 @@ def redo(phase: str, problem: Exception | str) -> None:
     print(f"{phase}: {problem}\n{phase}: redoing this phase", file=sys.stderr)
 
 
-def _run_ppo(config: PPOConfig, checker=None, *, phase: str, **kwargs) -> dict:
+def resumed_run(config: PPOConfig, checker=None, *, phase: str, **kwargs) -> dict:
     """:func:`agents.runner.run`, resumed; started over (with a message) when its saved state
     is damaged, missing a part, or was made with another checker."""
     try:
@@ -142,197 +138,6 @@ def _evaluated(cfg, ppo: PPOConfig) -> PPOConfig:
 
 
 # ----------------------------------------------------------------------------------------
-# a. behaviour agent
-# ----------------------------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True)
-class AgentPolicy:
-    """A trained agent as a :func:`checker.collect` policy (hashable: a static argument);
-    with ``epsilon`` > 0 each action is uniformly random with that probability."""
-
-    config: PPOConfig
-    epsilon: float = 0.0
-
-    def __call__(self, params, obs, state, key):
-        del state
-        if not self.epsilon:
-            return make_learner(self.config).act(params, obs, key)
-        key, k_explore, k_random = jax.random.split(key, 3)
-        action = make_learner(self.config).act(params, obs, key)
-        return chk.with_random_actions(action, k_explore, k_random, self.epsilon)
-
-
-def behaviour_agent(cfg, out: Path, cancel: threading.Event | None = None):
-    """PPO in ``none`` mode on the checker's scenario for ``behaviour_steps`` (resumable;
-    ``cancel`` stops it at its next checkpoint, :func:`agents.runner.run`)."""
-    config = behaviour_config(cfg)
-    result = _run_ppo(config, seeds=(cfg.seed,), out_dir=out / "behaviour",
-                      progress=cfg.progress, phase="a. behaviour agent",
-                      cancel=cancel)  # fmt: skip
-    params = jax.tree.map(lambda x: x[0], result["params"])
-    ev = {k: float(v[0, -1]) for k, v in result["eval"].items()}
-    print(f"a. behaviour agent ({config.total_timesteps} steps): success "
-          f"{ev['success_rate']:.2f}, violations {ev['violation_rate']:.2f}")  # fmt: skip
-    return AgentPolicy(config), params
-
-
-# ----------------------------------------------------------------------------------------
-# b. checker data, c. checker
-# ----------------------------------------------------------------------------------------
-def _collect(cfg, env_id: str, behaviour, key, samples: int, split: str = "train"):
-    """Windows of ``behaviour`` (``(AgentPolicy, params)``) on ``env_id``; the noisy oracle
-    plays instead when there is no agent or it was trained on another scenario."""
-    if behaviour is None or env_id != behaviour[0].config.env_id:
-        policy, params = chk.noisy_oracle_policy, chk.NoisyOracleParams(salt=cfg.seed)
-    else:
-        policy, params = behaviour
-        policy = dataclasses.replace(policy, epsilon=float(cfg.collect_epsilon))
-    settings = cfg.checker_train
-    return chk.collect(jaxgrid.make(env_id, split=split), policy, params, key, samples,
-                       settings.window, settings.lookahead, env_id=env_id,
-                       max_steps=cfg.collect_max_steps,
-                       final_windows=settings.final_windows)  # fmt: skip
-
-
-def _small_samples(cfg) -> int:
-    """Windows of the held-out and transfer sets."""
-    return max(64, cfg.checker_samples // HELDOUT_FRACTION)
-
-
-def checker_data(cfg, out: Path, behaviour):
-    """Balanced, auto-labelled windows of the behaviour agent's rollouts (resumable)."""
-    path = out / "checker_data"
-    if path.with_suffix(".npz").exists() or path.with_suffix(".json").exists():
-        try:
-            return chk.CheckerDataset.load(path)
-        except (ValueError, FileNotFoundError) as e:  # damaged, or one of the two files lost
-            redo("b. checker data", e)
-    key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 1)
-    data = _collect(cfg, cfg.checker_env_id, behaviour, key, cfg.checker_samples)
-    data.save(path)
-    print(f"b. checker data: {len(data)} windows, natural positive rate "
-          f"{data.meta['natural_positive_rate']:.4f}")  # fmt: skip
-    return data
-
-
-def train_checker(cfg, out: Path, data, behaviour):
-    """Train the checker as ``python -m checker`` does (:func:`checker.train_checker`, which
-    splits off the test set), then measure it on test, held-out language and transfer sets."""
-    ckpt, report_path = out / "checker", out / "checker.json"
-    data_sha256 = read_json(out / "checker_data.json").get("npz_sha256")
-    if ckpt.exists() or report_path.exists():
-        try:
-            trained, report = chk.load(ckpt), read_json(report_path)
-            if report.get("params_sha256") != params_sha256(ckpt):
-                raise ValueError(f"{report_path} describes other parameters than {ckpt}")
-            if report.get("data_sha256") != data_sha256:
-                raise ValueError(f"{ckpt} was trained on other data than {out}/checker_data")
-            return trained, report
-        except (ValueError, FileNotFoundError) as e:
-            redo("c. checker", e)
-    trained, history, test = chk.train_checker(data, cfg.checker_train, progress=cfg.progress)
-    chk.save(trained, ckpt)
-    key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 2)
-    held = _collect(cfg, cfg.checker_env_id, behaviour, key, _small_samples(cfg), "heldout")
-    details = {"test": chk.evaluate(trained, test), "heldout": chk.evaluate(trained, held)}
-    report = _checker_report(details, history)
-    report["transfer"] = _transfer(cfg, trained, report)
-    report.update(params_sha256=params_sha256(ckpt), data_sha256=data_sha256)
-    write_json(ckpt / "report.json", report)  # travels with the checker for --checker reuse
-    write_json(report_path, report)  # last: its presence marks the phase as done
-    print(f"c. checker: test AUROC {report['test']['auroc']:.3f} F1 {report['test']['f1']:.3f}"
-          f", held-out AUROC {report['heldout']['auroc']:.3f}")  # fmt: skip
-    return trained, report
-
-
-def _checker_report(details: dict, history: dict | None) -> dict:
-    report = {split: checker_rates(m) for split, m in details.items()}
-    report["details"] = details
-    if history is not None:
-        report["training"] = {k: history.get(k) for k in ("epochs_run", "best_epoch",
-                                                          "best_val_loss")}  # fmt: skip
-    return report
-
-
-def _transfer(cfg, trained, report: dict) -> dict | None:
-    """The checker on the experiment's own scenario when it was trained on another one."""
-    if cfg.env_id == trained.env_id or not trained.env_id:
-        return report.get("transfer")
-    key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 3)
-    # The behaviour agent knows another scenario: the noisy oracle plays this one.
-    data = _collect(cfg, cfg.env_id, None, key, _small_samples(cfg))
-    metrics = chk.evaluate(trained, data)
-    report.setdefault("details", {})[f"transfer_{cfg.env_id}"] = metrics
-    print(f"c. checker ({trained.env_id}) on {cfg.env_id}: AUROC {metrics['auroc']}")
-    return checker_rates(metrics)
-
-
-def load_reused(cfg):
-    """``--checker DIR`` loaded and checked against ``cfg`` before anything is written or
-    compiled: a checker whose kind, window, label timing (``--lookahead`` / ``--memory-lookahead``),
-    inputs (``--checker-actions``) or view size differ from the experiment's is refused by
-    name, since its alarms would mean something else (its vocabulary and sentence length are
-    checked by :func:`checker.load`). Returns the trained checker."""
-    path = Path(cfg.checker)
-    trained = chk.load(path)
-    kind, flag = trained.kind, f"--checker {path}"
-    if kind != cfg.checker_kind:
-        raise ValueError(f"{flag}: a {kind} checker, and {cfg.experiment} trains its agents "
-                         f"with a {cfg.checker_kind} checker")  # fmt: skip
-    view = cfg.ppo.make_env().view_size
-    if trained.config.view_size != view:
-        raise ValueError(f"{flag}: trained on {trained.config.view_size}x"
-                         f"{trained.config.view_size} views, and {cfg.env_id} shows {view}x"
-                         f"{view}")  # fmt: skip
-    if kind == "window":
-        mismatch = [("window", trained.config.window, cfg.checker_train.window, "--window"),
-                    ("lookahead", trained.lookahead, cfg.checker_train.lookahead,
-                     "--lookahead")]  # fmt: skip
-    else:
-        mismatch = [("lookahead", trained.lookahead, cfg.memory_checker.lookahead,
-                     "--memory-lookahead"),
-                    ("actions", trained.config.actions, cfg.checker_actions,
-                     "--checker-actions")]  # fmt: skip
-    for name, theirs, mine, option in mismatch:
-        if theirs != mine:
-            raise ValueError(f"{flag}: trained with {name} {theirs!r}, and this run asks for "
-                             f"{option} {mine!r}; pass {option} {theirs!r} to use it, or omit "
-                             "--checker to train one")  # fmt: skip
-    return trained
-
-
-def reuse_checker(cfg, trained):
-    """``--checker DIR`` (``trained``, from :func:`load_reused`) and its report
-    (``report.json`` of a pipeline run, or ``metrics.json`` of ``python -m checker``), which
-    must name the parameters' checksum: a report of other parameters is refused."""
-    path = Path(cfg.checker)
-    digest = params_sha256(path)
-    found = [path / name for name in ("report.json", "metrics.json") if (path / name).exists()]
-    if not found:
-        raise ValueError(f"--checker {path}: neither report.json nor metrics.json found, so "
-                         "its test metrics are unknown")  # fmt: skip
-    mine = [p for p in found if digest is not None
-            and read_json(p).get("params_sha256") == digest]  # fmt: skip
-    if not mine:
-        raise ValueError(
-            f"--checker {path}: {' and '.join(p.name for p in found)} describe(s) other "
-            f"parameters than {path / 'params.msgpack'} (or predate checksums); retrain it "
-            f"with `python -m checker --out {path} --overwrite`"
-        )
-    if mine[0].name == "report.json":
-        report = read_json(mine[0])
-    else:
-        m = read_json(mine[0])["metrics"]
-        details = {"test": m["test"]}
-        if m.get("heldout_language"):
-            details["heldout"] = m["heldout_language"]
-        report = _checker_report(details, None)
-        report.setdefault("heldout", None)
-    report = dict(report, transfer=_transfer(cfg, trained, dict(report)))
-    write_json(Path(cfg.out) / "checker.json", dict(report, reused_from=str(path)))
-    return trained, report
-
-
-# ----------------------------------------------------------------------------------------
 # d, e. PPO in every mode
 # ----------------------------------------------------------------------------------------
 def mode_arguments(cfg, mode: str, trained) -> tuple[PPOConfig, object, dict]:
@@ -360,7 +165,7 @@ def train_agents(
     if compiler is not None:
         compiler.wait(mode)
     config, checker, common = mode_arguments(cfg, mode, trained)
-    result = _run_ppo(config, checker, out_dir=out / "modes" / mode, progress=cfg.progress,
+    result = resumed_run(config, checker, out_dir=out / "modes" / mode, progress=cfg.progress,
                       phase=f"d. {mode}", cancel=cancel, **common)  # fmt: skip
     result["config"] = config
     return result

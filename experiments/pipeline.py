@@ -52,11 +52,11 @@ from tyro.constructors import PrimitiveConstructorSpec
 from agents.config import REWARD_MODES, PPOConfig, check_sweep
 from checker import cli
 from checker.train import CheckerTrainConfig, MemoryTrainConfig
-from experiments import assembly, memory_phase, phases, scheduling
+from experiments import assembly, checker_phases, phases, scheduling
 from experiments.presets import PRESETS, Experiment
 from jaxgrid import rundir
 
-CHECKER_KINDS = ("window", "memory")
+CHECKER_KINDS = tuple(checker_phases.CHECKER_PHASES)
 
 
 def _is_share(x) -> bool:
@@ -118,7 +118,7 @@ class ExperimentConfig:
     checker_train: CheckerTrainConfig = CheckerTrainConfig()
     # "window": phases a-c above (the paper's); "memory": a recurrent checker trained on
     # streams of the agents' env under a random policy, for constraints that count
-    # (experiments.memory_phase; no flag, the row sets it)
+    # (experiments.checker_phases.CHECKER_PHASES; no flag, the row sets it)
     checker_kind: str = "window"
     # The memory checker's data and training (--memory-*; checker_kind "memory" only)
     memory_checker: MemoryTrainConfig = MemoryTrainConfig()
@@ -161,15 +161,8 @@ class ExperimentConfig:
             if not _is_share(guided):
                 raise ValueError(f"{me}.shield_guided must be None or a share in [0, 1], got "
                                  f"{guided!r}")  # fmt: skip
-            if self.checker_kind != "memory":
-                raise ValueError(f"{me}.shield_guided: the shield's own checker is a memory "
-                                 f"checker, and {self.experiment} trains a "
-                                 f"{self.checker_kind} checker")  # fmt: skip
         if not isinstance(self.checker_actions, bool):
             raise ValueError(f"{me}.checker_actions must be a bool, got {self.checker_actions!r}")
-        if self.checker_actions and self.checker_kind != "memory":
-            raise ValueError(f"{me}.checker_actions: only a memory checker reads actions, and "
-                             f"{self.experiment} trains a {self.checker_kind} checker")  # fmt: skip
         eps = self.collect_epsilon
         if not _is_share(eps):
             raise ValueError(f"{me}.collect_epsilon must be a number in [0, 1], got {eps!r}")
@@ -181,18 +174,7 @@ class ExperimentConfig:
         if self.out and os.path.exists(self.out) and not os.path.isdir(self.out):
             raise ValueError(f"{me}.out {self.out}: not writable, it is a file (an output "
                              "directory is needed)")  # fmt: skip
-        settings = self.checker_train
-        if (
-            self.checker is None
-            and self.checker_kind == "window"
-            and settings.training_rows(self.checker_samples) < (settings.batch_size)
-        ):
-            raise ValueError(
-                f"{me}.checker_samples {self.checker_samples} leaves "
-                f"{settings.training_rows(self.checker_samples)} windows to train on after "
-                f"CheckerTrainConfig.test_fraction and CheckerTrainConfig.val_fraction, fewer "
-                f"than CheckerTrainConfig.batch_size {settings.batch_size}"
-            )
+        checker_phases.CHECKER_PHASES[self.checker_kind].check(self)
         if not self.checker_train.test_fraction > 0:
             raise ValueError("CheckerTrainConfig.test_fraction must be > 0 in an experiment: "
                              "its report holds the checker's test metrics")  # fmt: skip
@@ -255,12 +237,8 @@ def make_checker(cfg: ExperimentConfig, out, keep: dict, cancel, reused=None):
     ``keep`` receives the ``behaviour`` agent and the checker ``data`` that phases a-b made;
     ``cancel`` stops the behaviour agent's training at its next checkpoint."""
     if reused is not None:
-        return phases.reuse_checker(cfg, reused)
-    if cfg.checker_kind == "memory":  # a-c: streams, the recurrent checker, its report
-        return memory_phase.train_memory_checker(cfg, out)
-    behaviour = keep["behaviour"] = phases.behaviour_agent(cfg, out, cancel)  # a
-    data = keep["data"] = phases.checker_data(cfg, out, behaviour)  # b
-    return phases.train_checker(cfg, out, data, behaviour)  # c
+        return checker_phases.reuse_checker(cfg, reused)
+    return checker_phases.CHECKER_PHASES[cfg.checker_kind].make(cfg, out, keep, cancel)
 
 
 def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
@@ -270,7 +248,7 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
     ``trained``, ``report``, ``runs``), for a caller that goes on working with them.
     """
     # a --checker that does not fit is refused before --out records this configuration
-    reused = phases.load_reused(cfg) if cfg.checker is not None else None
+    reused = checker_phases.load_reused(cfg) if cfg.checker is not None else None
     out = phases.prepare_out(cfg)  # fails here, before any training, if not writable
     start = time.perf_counter()
     keep = {} if keep is None else keep
@@ -282,8 +260,8 @@ def run_experiment(cfg: ExperimentConfig, keep: dict | None = None) -> dict:
         made = workers.submit(make_checker, cfg, out, keep, workers.cancel, reused)  # a-c
         own = None  # c': the shield's own checker, beside c
         if cfg.shield_guided is not None and "shield" in cfg.modes:
-            own = workers.submit(memory_phase.train_memory_checker, cfg, out, guided=
-                                 cfg.shield_guided, name=memory_phase.SHIELD_CHECKER)  # fmt: skip
+            own = workers.submit(checker_phases.memory_checker, cfg, out, guided=
+                                 cfg.shield_guided, name=checker_phases.SHIELD_CHECKER)  # fmt: skip
         # d, e: the modes without a checker start beside a-c, the others once it is done
         train = lambda mode, trained: workers.submit(  # noqa: E731
             phases.train_agents, cfg, out, mode, trained, compiler, workers.cancel
@@ -341,13 +319,17 @@ FLAGS: cli.Names = {
 
 
 def hidden_flags(row: Experiment) -> cli.Names:
-    """``row.hidden`` as :func:`checker.cli.parse` names: a field of :class:`ExperimentConfig`
-    (a nested part: every field of it), or ``"part.field"``."""
+    """The settings without a flag in ``row``'s command line as :func:`checker.cli.parse`
+    names: ``row.hidden`` and the settings only other kinds of checker read
+    (:attr:`~experiments.checker_phases.CheckerPhases.settings`); each is a field of
+    :class:`ExperimentConfig` (a nested part: every field of it), or ``"part.field"``."""
     parts = {f.name: f.type for f in dataclasses.fields(ExperimentConfig)}
     nested = {"ppo": PPOConfig, "checker_train": CheckerTrainConfig,
               "memory_checker": MemoryTrainConfig}  # fmt: skip
     names: dict = {}
-    for item in row.hidden:
+    others = [p.settings for kind, p in checker_phases.CHECKER_PHASES.items()
+              if kind != row.checker_kind]  # fmt: skip
+    for item in (*row.hidden, *(name for settings in others for name in settings)):
         part, _, field = item.partition(".")
         if part not in parts:
             raise ValueError(f"Experiment {row.name}.hidden: {item!r} names no setting")
@@ -372,11 +354,12 @@ def parse_args(argv, row: Experiment):
     chosen, _ = pre.parse_known_args(argv)
     name = "quick" if chosen.quick and not chosen.paper else "paper" if chosen.paper else ""
     hide = hidden_flags(row)
+    steps = checker_phases.CHECKER_PHASES[row.checker_kind].steps
     names = {cls: {**FLAGS.get(cls, {}), **hide.get(cls, {})} for cls in FLAGS.keys() | hide}
     return cli.parse(
         ExperimentConfig, argv, default=preset(row, name or "default"), names=names,
         prog=prog, description=f"{row.name}: the paper's experiment on {row.env_id} "
-        f"({row.phases}, PPO in every reward mode, report). --quick and --paper change the "
+        f"({steps}, PPO in every reward mode, report). --quick and --paper change the "
         "defaults shown here.",
     )  # fmt: skip
 

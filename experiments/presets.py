@@ -14,12 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 
-# Flags that mean nothing for a kind of checker: a row hides those of the other kind.
-# A name is a field of ExperimentConfig (a nested part: all its flags) or "part.field".
-MEMORY_ONLY = ("memory_checker", "shield_guided", "checker_actions")
-WINDOW_ONLY = ("behaviour_steps", "checker_samples", "collect_max_steps", "collect_epsilon",
-               "checker_train")  # fmt: skip
-
 
 @dataclasses.dataclass(frozen=True)
 class Experiment:
@@ -28,13 +22,16 @@ class Experiment:
     name: str  # names the module, the outputs and the default --out
     env_id: str  # the compared agents' scenario
     checker_env_id: str | None = None  # the checker's scenario; None: env_id
-    checker_kind: str = "window"  # "window" (phases a-c) or "memory" (experiments.memory_phase)
+    # "window" (the paper's) or "memory": experiments.checker_phases.CHECKER_PHASES, which
+    # also hides the flags of the other kinds' settings
+    checker_kind: str = "window"
     # settings that differ from the base in every preset (the reasons beside them)
     changes: dict = dataclasses.field(default_factory=dict)
     # the preset's step budgets for this experiment, applied after the preset
     budgets: dict[str, dict] = dataclasses.field(default_factory=dict)
-    hidden: tuple[str, ...] = MEMORY_ONLY  # flags left out of its command line
-    phases: str = "behaviour agent, checker data, checker"  # for --help
+    # settings without a flag in its command line: a field of ExperimentConfig (a nested
+    # part: all its flags) or "part.field"
+    hidden: tuple[str, ...] = ()
 
 
 # Sizes of every experiment: changes of the default preset (the base).
@@ -75,8 +72,7 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
     Experiment("three_rooms_key", "ThreeRoomsKey-v0", "TwoRooms-v0", budgets={
         "default": dict(ppo=dict(total_timesteps=5_000_000))}),
     # Constraints that count, wait for a trigger or keep a distance (docs/decisions.md).
-    Experiment("hazard_rooms", "HazardRooms-v0", checker_kind="memory", hidden=WINDOW_ONLY,
-               phases="random-policy streams, memory checker", changes=dict(
+    Experiment("hazard_rooms", "HazardRooms-v0", checker_kind="memory", changes=dict(
         # a frame and the episode's memory determine the step into it, and a shield asks
         # about the frame each candidate action leads to
         memory_checker=dict(lookahead=0),
@@ -100,5 +96,5 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
         modes=("checker",), ppo=dict(alarm_forward=False),
         checker_train=dict(blocked=0, lava_counterfactuals=False)),
         # set by the ablation itself; a given --checker has one labelling, not the two compared
-        hidden=(*MEMORY_ONLY, "modes", "checker", "checker_train.lookahead")),
+        hidden=("modes", "checker", "checker_train.lookahead")),
 )}  # fmt: skip

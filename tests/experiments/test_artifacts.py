@@ -29,7 +29,7 @@ import checker as chk
 from agents.runner import NonFiniteError
 from agents.runner import run as run_ppo
 from checker.store import params_sha256
-from experiments import assembly, phases, pipeline, provenance, two_rooms
+from experiments import assembly, checker_phases, phases, pipeline, provenance, two_rooms
 from jaxgrid import rundir
 from jaxgrid.io import read_json, read_jsonl
 
@@ -154,7 +154,7 @@ def same_tree(a, b) -> bool:
 def test_behaviour_agent_recovers_from_damage(run_copy, capsys, name, how):
     cfg, out, state = run_copy
     damage(out / "behaviour" / name, how)
-    _, params = phases.behaviour_agent(cfg, out)
+    _, params = checker_phases.behaviour_agent(cfg, out)
     check_recovery(capsys.readouterr().err, "a. behaviour agent", name, how)
     assert same_tree(params, state["behaviour"][1])  # deterministic: the same agent again
     records = read_jsonl(out / "behaviour" / "metrics.jsonl")
@@ -170,7 +170,7 @@ def test_behaviour_agent_recovers_from_damage(run_copy, capsys, name, how):
 def test_checker_data_is_collected_again(run_copy, capsys, name, how):
     cfg, out, state = run_copy
     damage(out / name, how)
-    data = phases.checker_data(cfg, out, state["behaviour"])
+    data = checker_phases.checker_data(cfg, out, state["behaviour"])
     assert_redone(capsys, "b. checker data", name if how != "delete" else "checker_data")
     assert np.array_equal(data.labels, state["data"].labels)
     assert np.array_equal(data.windows, state["data"].windows)
@@ -185,7 +185,7 @@ def test_checker_data_is_collected_again(run_copy, capsys, name, how):
 def test_checker_is_trained_again(run_copy, capsys, name, how):
     cfg, out, state = run_copy
     damage(out / name, how)
-    trained, report = phases.train_checker(cfg, out, state["data"], state["behaviour"])
+    trained, report = checker_phases.train_checker(cfg, out, state["data"], state["behaviour"])
     assert_redone(capsys, "c. checker", Path(name).name)
     assert report["params_sha256"] == params_sha256(out / "checker")
     assert read_json(out / "checker.json")["params_sha256"] == report["params_sha256"]
@@ -197,7 +197,7 @@ def test_checker_of_other_data_is_trained_again(run_copy, capsys):
     cfg, out, state = run_copy
     other = state["data"].subset(np.arange(len(state["data"]) - 1))
     other.save(out / "checker_data")  # a valid dataset, but not the one the checker saw
-    phases.train_checker(cfg, out, other, state["behaviour"])
+    checker_phases.train_checker(cfg, out, other, state["behaviour"])
     assert_redone(capsys, "c. checker", "trained on other data")
 
 
@@ -270,7 +270,8 @@ def test_reused_checker_with_a_stale_report_is_refused(run_copy, tmp_path, capsy
     ckpt = out / "checker"
     reuse = pipeline.parse_args([*ARGV, "--out", str(tmp_path / "reuse"), "--checker",
                                  str(ckpt)], two_rooms.SCENARIO)  # fmt: skip
-    _, report = phases.reuse_checker(reuse, phases.load_reused(reuse))  # it matches: accepted
+    # it matches: accepted
+    _, report = checker_phases.reuse_checker(reuse, checker_phases.load_reused(reuse))
     assert report["test"] == state["report"]["test"]
     # Retrained (here: other parameters) without its report: the report no longer matches.
     import jax

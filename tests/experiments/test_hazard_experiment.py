@@ -16,7 +16,7 @@ import checker
 from checker import memory_model as MM
 from checker.protocol import NO_ACTION
 from checker.train import MemoryTrainConfig
-from experiments import hazard_rooms, memory_phase, phases, pipeline, scheduling, two_rooms
+from experiments import checker_phases, hazard_rooms, phases, pipeline, scheduling, two_rooms
 from experiments.pipeline import preset
 from experiments.report import CHECKER_METRICS
 from jaxgrid import language
@@ -138,7 +138,7 @@ def test_a_checker_of_the_other_kind_is_refused_by_name(tmp_path):
     cfg = dataclasses.replace(cfg, checker=str(tmp_path / "memory"), out=str(tmp_path / "o"))
     with pytest.raises(ValueError, match="a memory checker, and two_rooms trains its agents "
                                          "with a window checker"):  # fmt: skip
-        phases.load_reused(cfg)
+        checker_phases.load_reused(cfg)
 
 
 def test_a_memory_checker_of_the_other_label_is_refused_by_name(tmp_path):
@@ -148,7 +148,7 @@ def test_a_memory_checker_of_the_other_label_is_refused_by_name(tmp_path):
     cfg = dataclasses.replace(cfg, checker=str(tmp_path / "next"), out=str(tmp_path / "o"))
     with pytest.raises(ValueError, match="trained with lookahead 1, and this run asks for "
                                          "--memory-lookahead 0"):  # fmt: skip
-        phases.load_reused(cfg)
+        checker_phases.load_reused(cfg)
 
 
 def _fake_streams(env, key, n, t, guided=0.0):
@@ -170,38 +170,40 @@ def _fake_streams(env, key, n, t, guided=0.0):
     }  # fmt: skip
 
 
-def test_the_memory_phase_is_skipped_when_done_and_redone_when_damaged(
+def test_the_memory_checker_phase_is_skipped_when_done_and_redone_when_damaged(
     tmp_path, capsys, monkeypatch
 ):
     """A matching checker and report are loaded, not retrained; a report of other parameters
     makes the phase run again (here on a tiny budget of made-up streams), with a message."""
-    monkeypatch.setattr(memory_phase, "collect_streams", _fake_streams)
+    monkeypatch.setattr(checker_phases, "collect_streams", _fake_streams)
     cfg = dataclasses.replace(
         preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
         memory_checker=MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
     )  # fmt: skip
-    first, report = memory_phase.train_memory_checker(cfg, tmp_path)
+    first, report = checker_phases.memory_checker(cfg, tmp_path)
     assert report["kind"] == "memory" and set(report["test"]) == set(CHECKER_METRICS)
     assert {"per_type", "late_budget", "costly_budget"} <= set(report["details"]["test"])
-    again, same = memory_phase.train_memory_checker(cfg, tmp_path)
+    again, same = checker_phases.memory_checker(cfg, tmp_path)
     assert same == report and "redoing" not in capsys.readouterr().err
     write_json(tmp_path / "checker.json", {**report, "params_sha256": "0" * 64})
-    memory_phase.train_memory_checker(cfg, tmp_path)
+    checker_phases.memory_checker(cfg, tmp_path)
     assert "c. memory checker: redoing this phase" in capsys.readouterr().err
 
 
-def test_the_memory_phase_trains_a_checker_of_actions_when_asked(tmp_path, capsys, monkeypatch):
+def test_the_memory_checker_phase_trains_a_checker_of_actions_when_asked(
+    tmp_path, capsys, monkeypatch
+):
     """``checker_actions`` gives a checker that reads the action into each frame; a resume
     that asks otherwise retrains it, with a message."""
-    monkeypatch.setattr(memory_phase, "collect_streams", _fake_streams)
+    monkeypatch.setattr(checker_phases, "collect_streams", _fake_streams)
     cfg = dataclasses.replace(
         preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
         memory_checker=MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
         checker_actions=True,
     )  # fmt: skip
-    trained, report = memory_phase.train_memory_checker(cfg, tmp_path)
+    trained, report = checker_phases.memory_checker(cfg, tmp_path)
     assert trained.config.actions and report["training"]["actions"] is True
-    plain, _ = memory_phase.train_memory_checker(
+    plain, _ = checker_phases.memory_checker(
         dataclasses.replace(cfg, checker_actions=False), tmp_path
     )
     assert not plain.config.actions
@@ -212,18 +214,18 @@ def test_the_shields_own_checker_is_a_phase_of_its_own(tmp_path, capsys, monkeyp
     """``name`` and ``guided`` put a second checker beside the first, trained on other
     streams; a resume with another share of oracle actions retrains it, with a message."""
     shares = []
-    monkeypatch.setattr(memory_phase, "collect_streams", lambda env, key, n, t, guided=0.0: (
+    monkeypatch.setattr(checker_phases, "collect_streams", lambda env, key, n, t, guided=0.0: (
         shares.append(guided) or _fake_streams(env, key, n, t)))  # fmt: skip
     cfg = dataclasses.replace(
         preset(hazard_rooms.SCENARIO, "quick"), out=str(tmp_path), progress=False,
         memory_checker=MemoryTrainConfig(streams=8, steps=16, updates=2, batch_streams=4),
     )  # fmt: skip
-    _, own = memory_phase.train_memory_checker(cfg, tmp_path, name="shield_checker", guided=0.5)
+    _, own = checker_phases.memory_checker(cfg, tmp_path, name="shield_checker", guided=0.5)
     assert shares == [0.5, 0.5]  # its training and test streams
     assert own["training"]["guided"] == 0.5 and (tmp_path / "shield_checker.json").exists()
     assert not (tmp_path / "checker.json").exists()
     assert "c'. shield checker: test AUROC" in capsys.readouterr().out
-    memory_phase.train_memory_checker(cfg, tmp_path, name="shield_checker", guided=0.25)
+    checker_phases.memory_checker(cfg, tmp_path, name="shield_checker", guided=0.25)
     assert "c'. shield checker: redoing this phase" in capsys.readouterr().err
     assert shares[2:] == [0.25, 0.25]
 
@@ -241,8 +243,8 @@ def test_the_shield_trains_with_its_own_checker_and_the_others_with_the_experime
     monkeypatch.setattr(pipeline, "make_checker", lambda cfg, out, keep, cancel, reused: (
         "experiment's", {"test": {}}))  # fmt: skip
     monkeypatch.setattr(
-        memory_phase,
-        "train_memory_checker",
+        checker_phases,
+        "memory_checker",
         lambda cfg, out, name, guided: (
             made.update(name=name, guided=guided) or "shield's",
             {"test": {}, "guided": guided},
@@ -257,7 +259,7 @@ def test_the_shield_trains_with_its_own_checker_and_the_others_with_the_experime
     keep = {}
     with pytest.raises(Stop):
         pipeline.run_experiment(cfg, keep)
-    assert made == {"name": memory_phase.SHIELD_CHECKER, "guided": 0.5}
+    assert made == {"name": checker_phases.SHIELD_CHECKER, "guided": 0.5}
     given = {mode: r["checker"] for mode, r in keep["runs"].items()}
     assert given["shield"] == "shield's" and given["checker"] == given["lagrangian"] == \
         "experiment's"  # fmt: skip

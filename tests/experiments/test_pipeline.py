@@ -17,6 +17,7 @@ from helpers.experiment_runs import check_outputs, quick, refused_before_any_com
 from agents.config import REWARD_MODES, PPOConfig
 from checker.train import CheckerTrainConfig
 from experiments import (
+    checker_phases,
     hazard_rooms,
     label_timing,
     phases,
@@ -389,7 +390,7 @@ def test_collection_epsilon_mixes_uniform_actions_into_the_behaviour_agent():
     _, ts = jax.vmap(jaxgrid.make("TwoRooms-v0").reset)(jax.random.split(jax.random.key(1), 8))
     obs = jax.tree.map(lambda x: np.repeat(np.asarray(x), 500, axis=0), ts.observation)
     key = jax.random.key(2)
-    agent = phases.AgentPolicy(config)
+    agent = checker_phases.AgentPolicy(config)
     np.testing.assert_array_equal(
         agent(params, obs, None, key),
         dataclasses.replace(agent, epsilon=0.0)(params, obs, None, key),

@@ -11,7 +11,7 @@ import pytest
 
 from checker.model import CheckerConfig, TrainedChecker, init_params
 from checker.store import save
-from experiments import phases, pipeline, two_rooms
+from experiments import checker_phases, phases, pipeline, two_rooms
 from experiments.pipeline import preset
 
 
@@ -32,7 +32,7 @@ def _cfg(checker, out, **checker_train):
 
 
 def test_a_checker_of_the_run_settings_is_accepted(window_checker, tmp_path):
-    assert phases.load_reused(_cfg(window_checker, tmp_path)).lookahead == 1
+    assert checker_phases.load_reused(_cfg(window_checker, tmp_path)).lookahead == 1
 
 
 @pytest.mark.parametrize("setting, value, flag", [("lookahead", 0, "--lookahead"),
@@ -41,7 +41,7 @@ def test_another_label_timing_or_window_is_refused_by_name(window_checker, tmp_p
                                                            value, flag):  # fmt: skip
     cfg = _cfg(window_checker, tmp_path, **{setting: value})
     with pytest.raises(ValueError, match=f"trained with {setting} .*asks for {flag} {value}"):
-        phases.load_reused(cfg)
+        checker_phases.load_reused(cfg)
 
 
 def test_a_refused_checker_leaves_out_reusable(window_checker, tmp_path, capsys):
@@ -55,6 +55,6 @@ def test_a_refused_checker_leaves_out_reusable(window_checker, tmp_path, capsys)
     # configuration"
     assert not (out / "config.json").exists() and not (out / ".lock").exists()
     fixed = pipeline.parse_args(argv, two_rooms.SCENARIO)
-    phases.load_reused(fixed)
+    checker_phases.load_reused(fixed)
     phases.prepare_out(fixed)
     assert (out / "config.json").exists()
