@@ -16,7 +16,9 @@ exit status 2, Ctrl-C is exit status 130 at once; a bug keeps its traceback.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import math
 import os
 import re
@@ -124,20 +126,63 @@ def parse(
     prog: str | None = None,
     description: str | None = None,
     names: Names | None = None,
+    title: str | None = None,
 ) -> T:
     """``cls`` from the command line ``argv`` (default ``sys.argv[1:]``) over ``default``.
 
     ``names[C][field]`` is the flag of a field of config ``C`` (dashes for underscores;
     ``None``: no flag, the default stays); other fields are flags of their own name, nested
-    configs included. ``--help`` and usage errors exit (status 0 and 2).
+    configs included; ``--help`` shows each nested config's flags in a group of its own and
+    ``cls``'s in one titled ``title options`` (tyro's plain ``options`` without a title).
+    ``--help`` and usage errors exit (status 0 and 2).
     """
     argv = sys.argv[1:] if argv is None else list(argv)
+    shown = _Shown(sys.stdout) if title and {"-h", "--help"} & set(argv) else None
     try:
-        with _registry(names or {}):
+        with _registry(names or {}), contextlib.redirect_stdout(shown or sys.stdout):
             return tyro.cli(cls, args=argv, prog=prog, description=description,
                             default=MISSING_NONPROP if default is None else default)  # fmt: skip
     except _Invalid as e:
         usage_error(str(e), prog)
+    finally:
+        if shown is not None:
+            print(_titled(shown.getvalue(), title), end="")
+
+
+def _titled(text: str, title: str) -> str:
+    """``text`` of tyro's help with its root group ``options`` titled ``title options``, in a
+    box (or over a rule) as wide as before; colour codes, where drawn, are kept."""
+    plain = re.compile(r"\x1b\[[0-9;]*m")
+    lines = text.split("\n")
+    for i, line in enumerate(lines):
+        bare = plain.sub("", line)
+        if not (bare.startswith("╭─ options ") or bare.rstrip() == " options"):
+            continue
+        wide = line.replace("options", f"{title} options", 1)
+        extra = len(title) + 1
+        for pad in ("─", " "):  # the box's trailing rule, or the plain title's padding
+            cut = wide.rfind(pad * extra)
+            if cut >= 0 and (pad == "─" or bare.startswith(" options")):
+                wide = wide[:cut] + wide[cut + extra :]
+                break
+        lines[i] = wide
+        break
+    return "\n".join(lines)
+
+
+class _Shown(io.StringIO):
+    """What tyro prints, kept: it draws as it would on ``stream`` (boxes, colours)."""
+
+    def __init__(self, stream):
+        super().__init__()
+        self._stream = stream
+
+    @property
+    def encoding(self):
+        return getattr(self._stream, "encoding", None)
+
+    def isatty(self) -> bool:
+        return self._stream.isatty()
 
 
 def usage_error(message: str, prog: str | None = None) -> NoReturn:

@@ -358,7 +358,8 @@ def parse_args(argv, row: Experiment):
     names = {cls: {**FLAGS.get(cls, {}), **hide.get(cls, {})} for cls in FLAGS.keys() | hide}
     return cli.parse(
         ExperimentConfig, argv, default=preset(row, name or "default"), names=names,
-        prog=prog, description=f"{row.name}: the paper's experiment on {row.env_id} "
+        prog=prog, title="experiment",
+        description=f"{row.name}: the paper's experiment on {row.env_id} "
         f"({steps}, PPO in every reward mode, report). --quick and --paper change the "
         "defaults shown here.",
     )  # fmt: skip

@@ -179,8 +179,10 @@ def test_help_groups_the_flags_experiment_ppo_checker(capsys):
     """The experiment's own flags, then PPO's, then the checker's, each under its title."""
     for module in (two_rooms, hazard_rooms):
         text = _help(capsys, [], module.SCENARIO)
-        titles = re.findall(r"^\W*((?:PPO |checker )?options)\W*$", text, re.M)
-        assert titles == ["options", "PPO options", "checker options"], titles
+        titles = re.findall(r"^\W*((?:experiment |PPO |checker )?options)\W*$", text, re.M)
+        assert titles == ["experiment options", "PPO options", "checker options"], titles
+        widths = {len(line) for line in text.splitlines() if line.strip() in titles}
+        assert len(widths) == 1, widths  # the retitled group is as wide as the others
 
 
 def test_every_flag_shows_its_default_and_presets_change_them(capsys):
