@@ -98,3 +98,8 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
         # set by the ablation itself; a given --checker has one labelling, not the two compared
         hidden=("modes", "checker", "checker_train.lookahead")),
 )}  # fmt: skip
+
+#: The levels of ``python -m experiments.benchmark``: rows of :data:`EXPERIMENTS`.
+BENCHMARK_LEVELS: tuple[str, ...] = ("two_rooms", "two_rooms_lava", "three_rooms_key",
+                                     "hazard_rooms")  # fmt: skip
+

@@ -4,6 +4,8 @@
   95% bootstrap band of the interquartile mean over seeds (the paper's Figures 4 and 5);
   :func:`curves_from_results` gives its input from a ``results.json`` object.
 - :func:`plot_sweep`: final violation % and success % against a swept value.
+- :func:`plot_benchmark_level`: one benchmark level, success against training violations,
+  a point per method with its intervals.
 
 matplotlib is imported only inside the functions that draw (its import costs about a second),
 and a figure goes through :class:`matplotlib.figure.Figure` and the Agg canvas, never
@@ -24,7 +26,8 @@ from experiments.report.schema import MODE_LABELS, RATE_KEYS, ordered_modes
 from experiments.stats import bootstrap_ci
 from jaxgrid.io import atomic_write
 
-__all__ = ["MODE_COLORS", "curves_from_results", "plot_curves", "plot_sweep"]
+__all__ = ["MODE_COLORS", "curves_from_results", "plot_benchmark_level", "plot_curves",
+           "plot_sweep"]  # fmt: skip
 
 #: One fixed colour per mode, shared by every figure.
 MODE_COLORS: dict[str, str] = {
@@ -175,6 +178,41 @@ def plot_sweep(
     axes[1].legend(loc="best", fontsize=8, title="IQM, 95% bootstrap CI", title_fontsize=8)
     if title:
         fig.suptitle(title)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    atomic_write(Path(path), buf.getvalue())
+    return Path(path)
+
+
+def plot_benchmark_level(
+    level: Mapping, name: str, path: str | os.PathLike, *, dpi: int = 120
+) -> Path:
+    """A PNG of one level of the benchmark's summary (``OUT/benchmark.json``): final success %
+    against violations during training, a point per method at its interquartile means over
+    seeds, with both 95% bootstrap intervals as error bars; a method whose results lack one
+    of the two is left out."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.4, 4.6), dpi=dpi, layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    for mode in ordered_modes(level["methods"]):
+        figures = level["methods"][mode]
+        if "training_violations" not in figures or "success_rate" not in figures:
+            continue
+        v, s = figures["training_violations"], figures["success_rate"]
+        ax.errorbar(v["iqm"], 100.0 * s["iqm"],
+                    xerr=[[v["iqm"] - v["lo"]], [v["hi"] - v["iqm"]]],
+                    yerr=[[100.0 * (s["iqm"] - s["lo"])], [100.0 * (s["hi"] - s["iqm"])]],
+                    marker="o", capsize=3, linestyle="none", color=MODE_COLORS.get(mode),
+                    label=MODE_LABELS.get(mode, mode))  # fmt: skip
+    ax.set_xlabel("violations during training (per seed)")
+    ax.set_ylabel("final success %")
+    ax.set_ylim(-2, 102)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8, title="IQM, 95% bootstrap CI", title_fontsize=8)
+    ax.set_title(f"{name} ({level['env_id']})")
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     atomic_write(Path(path), buf.getvalue())

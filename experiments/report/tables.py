@@ -7,6 +7,8 @@
 - :func:`summarise`: the end-of-run console summary.
 - :func:`sweep_table`: a sweep's summary (:func:`experiments.assembly.write_sweep`) as
   Markdown.
+- :func:`benchmark_table`: the benchmark's summary (:mod:`experiments.benchmark`) as one
+  Markdown table, a row per level and method.
 """
 
 from __future__ import annotations
@@ -28,7 +30,18 @@ from experiments.report.schema import (
 from experiments.stats import mean_ci
 from jaxgrid.io import atomic_write, write_json
 
-__all__ = ["ReportPaths", "results_table", "summarise", "sweep_table", "write_report"]
+__all__ = ["BENCHMARK_COLUMNS", "ReportPaths", "benchmark_table", "results_table", "summarise",
+           "sweep_table", "write_report"]  # fmt: skip
+
+#: The benchmark table's columns: ``(key of a method's iqm summaries, header, scale)``.
+BENCHMARK_COLUMNS: tuple[tuple[str, str, float], ...] = (
+    ("violation_rate", "Final violation %", 100.0),
+    ("success_rate", "Success %", 100.0),
+    ("mean_reward", "Return", 1.0),
+    ("episode_cost", "Episode cost", 1.0),
+    ("training_violations", "Training violations", 1.0),
+    ("longest_costly_run", "Longest costly run", 1.0),
+)
 
 
 def _cell(entry: Mapping, key: str, scale: float, digits: int, final: str = "final") -> str:
@@ -266,4 +279,27 @@ def sweep_table(summary: dict) -> str:
             f"{t['steps_per_s_per_agent']:,.0f} | {t['wall_s']:.0f} s |"
         )
     lines.append("\nThroughput counts compilation and evaluations in the wall time.")
+    return "\n".join(lines) + "\n"
+
+
+def benchmark_table(summary: Mapping) -> str:
+    """The benchmark's ``summary`` (``OUT/benchmark.json``) as Markdown: a row per level and
+    method, IQM [95% bootstrap interval] over seeds in each :data:`BENCHMARK_COLUMNS` column
+    (``n/a`` where the level's results hold no such figure)."""
+    columns = BENCHMARK_COLUMNS
+    lines = ["| Level | Method | " + " | ".join(h for _, h, _ in columns) + " |",
+             "|---|---|" + "---:|" * len(columns)]  # fmt: skip
+    for level, entry in summary["levels"].items():
+        for method, figures in entry["methods"].items():
+            cells = []
+            for key, _, scale in columns:
+                f = figures.get(key)
+                digits = 0 if key == "training_violations" else 1 if scale == 100 else 2
+                cells.append("n/a" if f is None else
+                             f"{f['iqm'] * scale:.{digits}f} [{f['lo'] * scale:.{digits}f}, "
+                             f"{f['hi'] * scale:.{digits}f}]")  # fmt: skip
+            lines.append(f"| {level} | {method} | " + " | ".join(cells) + " |")
+    seeds = summary.get("config", {}).get("seeds")
+    lines += ["", f"Interquartile mean over {seeds} seeds [95% stratified-bootstrap interval]; "
+              "per-seed values in benchmark.json."]  # fmt: skip
     return "\n".join(lines) + "\n"
