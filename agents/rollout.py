@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from agents import shield as shield_mod
 from agents.checker_carry import embed
 from agents.config import PPOConfig
-from agents.evaluation import violation_of
+from agents.evaluation import cost_of, violation_of
 from checker.protocol import CheckerProtocol
 from jaxgrid import language
 from jaxgrid.constants import EMPTY, FORWARD
@@ -261,6 +261,7 @@ def env_step(
         "violations": violation.sum(),
         "alarms": alarm.sum(),
         "cost": cost.sum(),
+        "env_cost": cost_of(ts).sum(),  # the env's own cost (info["cost"]), whatever the mode
         "novelty": bonus.sum(),
         "blocked": jnp.zeros((), jnp.int32) if allowed is None else (~allowed).sum(),
         "blocked_mass": blocked.sum(),

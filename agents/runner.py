@@ -63,17 +63,27 @@ def chunk_records(
     metrics,
     totals: np.ndarray,
     swept: dict[str, Sequence[float]] | None = None,
+    cost_totals: np.ndarray | None = None,
 ) -> list[dict]:
     """One JSON-serialisable record per agent for chunk ``chunk`` (0-based); ``seeds`` and
-    the ``swept`` hyperparameters' values are per agent (the record holds both)."""
+    the ``swept`` hyperparameters' values are per agent (the record holds both).
+
+    ``totals`` are the agents' training violations and ``cost_totals`` (float) their env
+    costs, both summed from update 0 to this chunk's last; an unknown one (NaN, or None for
+    all: a run resumed from records older than the cost metrics) is logged as null.
+    ``train/cum_env_cost_rate`` is OmniSafe's cost rate: the env cost of every training step
+    so far over the number of those steps."""
     train, evaluation = metrics["train"], metrics["eval"]
     step = (chunk + 1) * config.eval_every * config.batch_size
     # Updates in the first EARLY_FRACTION of training (its first env steps).
     early = chunk * config.eval_every + np.arange(config.eval_every) < early_updates(config)
+    if cost_totals is None:
+        cost_totals = np.full(len(seeds), np.nan)
     records = []
     for i, seed in enumerate(seeds):
         t = {k: v[i] for k, v in train.items()}
         episodes = int(t["episodes"].sum())
+        cum_cost = None if np.isnan(cost_totals[i]) else float(cost_totals[i])
         records.append(
             {
                 "seed": int(seed),
@@ -90,6 +100,9 @@ def chunk_records(
                 "train/violations": int(t["violations"].sum()),
                 "train/violations_early": int(t["violations"][early].sum()),
                 "train/cum_violations": int(totals[i]),
+                "train/env_cost": float(t["env_cost"].astype(np.float64).sum()),
+                "train/cum_env_cost": cum_cost,
+                "train/cum_env_cost_rate": None if cum_cost is None else cum_cost / step,
                 "train/alarms": int(t["alarms"].sum()),
                 "train/blocked": int(t["blocked"].sum()),
                 "train/blocked_rate": float(t["blocked_rate"].mean()),
@@ -153,8 +166,11 @@ def run(
     Returns a dict with ``steps`` (num_chunks,), ``eval`` {metric: (seeds, chunks)},
     (an axis ``seeds`` has one entry per agent), ``seeds`` (the seed of each agent) and,
     with a sweep, ``sweep`` {name: (agents,) values};
-    ``train_violations`` (seeds,) and ``train_violations_early`` (seeds,: in the first
-    :data:`EARLY_FRACTION` of the updates), ``records`` (the JSONL records), ``params`` (stacked
+    ``train_violations`` (seeds,: from update 0) and ``train_violations_early`` (seeds,: in
+    the first :data:`EARLY_FRACTION` of the updates), ``train_env_cost`` (seeds,: the env's
+    cost summed from update 0) and ``train_cost_rate`` (seeds, chunks: OmniSafe's cost rate,
+    that cost over the steps so far, after each chunk; both absent for a run resumed from
+    records older than them), ``records`` (the JSONL records), ``params`` (stacked
     over seeds), ``final`` {metric: (seeds,)} when ``final_episodes`` (in the shield modes
     with ``final["unshielded"]``, the policy without its shield) and ``wall_s``.
 
@@ -201,6 +217,7 @@ def run(
 
     manager = bar = None
     done_chunks, records, totals = 0, [], np.zeros(len(seeds), np.int64)
+    cost_totals = np.zeros(len(seeds), np.float64)
     try:
         if out is not None and checkpoint_every:
             manager = checkpoint.make_manager(out / "checkpoints")
@@ -213,6 +230,9 @@ def run(
                 for r in records:
                     i = idents.index(ident(r))
                     totals[i] = max(totals[i], r["train/cum_violations"])
+                    # Unknown (NaN) for good where a record predates the cost metrics.
+                    cost = r.get("train/cum_env_cost")
+                    cost_totals[i] = np.nan if cost is None else max(cost_totals[i], cost)
             else:
                 # A fresh run: orbax would silently refuse to overwrite an existing step
                 # (save() returns False), leaving the old run's state for a later resume.
@@ -246,7 +266,8 @@ def run(
                 )
             runner = new_runner
             totals += metrics["train"]["violations"].sum(axis=1).astype(np.int64)
-            new = chunk_records(config, c, seeds, metrics, totals, swept)
+            cost_totals += metrics["train"]["env_cost"].astype(np.float64).sum(axis=1)
+            new = chunk_records(config, c, seeds, metrics, totals, swept, cost_totals)
             records.extend(new)
             if out is not None and primary:
                 io.append_jsonl(out / checkpoint.METRICS, new)
@@ -302,15 +323,32 @@ def _name(ident: tuple, sweep: Mapping) -> str:
     return ", ".join([f"seed {ident[0]}", *values])
 
 
+#: The evaluation metrics of the records that a run's result gathers per agent and chunk.
+_EVAL_KEYS = ("eval/violation_rate", "eval/mean_reward", "eval/success_rate", "eval/mean_cost",
+             "eval/mean_costly_run", "eval/max_costly_run")  # fmt: skip
+
+
 def _collect(config: PPOConfig, seeds: list[tuple], records: list[dict], ident=_ident) -> dict:
     """Per-agent histories; ``seeds`` are the agents' :func:`_ident` tuples."""
     chunks = sorted({r["chunk"] for r in records})
     by = {(ident(r), r["chunk"]): r for r in records}
-    keys = ("eval/violation_rate", "eval/mean_reward", "eval/success_rate")
-    evaluation = {
-        k.split("/")[1]: np.array([[by[s, c][k] for c in chunks] for s in seeds]) for k in keys
-    }
+
+    def history(key):
+        """(agents, chunks) values of ``key``, or None where a record lacks one (a resumed run
+        directory older than the metric)."""
+        values = [[by[s, c].get(key) for c in chunks] for s in seeds]
+        return None if any(v is None for row in values for v in row) else np.array(values)
+
+    evaluation = {k.split("/")[1]: history(k) for k in _EVAL_KEYS}
+    evaluation = {k: v for k, v in evaluation.items() if v is not None}
     last = chunks[-1] if chunks else None
+    cost_rate = history("train/cum_env_cost_rate")
+    costs = {}
+    if cost_rate is not None and chunks:
+        costs = {
+            "train_cost_rate": cost_rate,
+            "train_env_cost": np.array([by[s, last]["train/cum_env_cost"] for s in seeds]),
+        }
     return {
         "steps": np.array([(c + 1) * config.eval_every * config.batch_size for c in chunks]),
         "eval": evaluation,
@@ -321,6 +359,7 @@ def _collect(config: PPOConfig, seeds: list[tuple], records: list[dict], ident=_
             [sum(by[s, c].get("train/violations_early", 0) for c in chunks) for s in seeds]
         ),
         "train_alarms": np.array([sum(by[s, c]["train/alarms"] for c in chunks) for s in seeds]),
+        **costs,
         "records": records,
         "seeds": seeds,
     }

@@ -358,6 +358,7 @@ class Learner(struct.PyTreeNode):
             cost_rate=cost_rate,
             novelty_rate=totals["novelty"] / c.batch_size,
             episode_cost=episode_cost,
+            env_cost=totals["env_cost"],  # the env's info["cost"], whatever the mode uses
             lagrange=lagrange,
         )
         return lagrange, metrics

@@ -20,6 +20,7 @@ import numpy as np
 from experiments import stats
 from experiments.phases import config_dict
 from experiments.report import (
+    COST_KEYS,
     curves_from_results,
     plot_curves,
     plot_sweep,
@@ -31,18 +32,25 @@ from jaxgrid.io import read_json, write_json, write_jsonl
 __all__ = ["assemble", "select_agents", "write_outputs", "write_sweep"]
 
 
+def _pooled(values, key: str) -> float:
+    """Seeds' evaluations pooled: the mean of their means, the maximum of their maxima."""
+    return float(np.max(values) if key == "max_costly_run" else np.mean(values))
+
+
 def _method(result: dict, final_episodes: int) -> dict:
     steps, ev, final = result["steps"], result["eval"], result["final"]
     curve = [
         {"step": int(s), **{k: float(np.mean(ev[k][:, i])) for k in ev}}
         for i, s in enumerate(steps)
     ]
-    keys = ("violation_rate", "mean_reward", "success_rate")
+    rates = ("violation_rate", "mean_reward", "success_rate")
+    keys = rates + tuple(k for k in COST_KEYS if k in final)
+    curve_keys = rates + tuple(k for k in COST_KEYS if k in ev)
     seeds = len(result["seeds"])
     violations = result["train_violations"]
     early = result.get("train_violations_early", np.zeros_like(violations))
     entry = {
-        "final": {**{k: float(np.mean(final[k])) for k in keys},
+        "final": {**{k: _pooled(final[k], k) for k in keys},
                   "episodes": int(final_episodes * seeds)},
         "training_violations": int(np.rint(np.mean(violations))),
         "training_violations_per_seed": [int(v) for v in violations],
@@ -53,14 +61,21 @@ def _method(result: dict, final_episodes: int) -> dict:
         "seeds": seeds,
         "final_per_seed": {k: [float(v) for v in final[k]] for k in keys},
         "curve_per_seed": {"step": [int(s) for s in steps],
-                           **{k: np.asarray(ev[k]).tolist() for k in keys}},
+                           **{k: np.asarray(ev[k]).tolist() for k in curve_keys}},
         "wall_s": float(result["wall_s"]),
     }  # fmt: skip
     per_seed = {**entry["final_per_seed"], "training_violations": violations,
                 "training_violations_first20": early}  # fmt: skip
+    if "train_cost_rate" in result:  # OmniSafe's cost rate: training cost over training steps
+        history = np.asarray(result["train_cost_rate"])
+        entry["training_cost_rate"] = float(np.mean(history[:, -1]))
+        entry["training_cost_rate_per_seed"] = [float(v) for v in history[:, -1]]
+        entry["training_cost_per_seed"] = [float(v) for v in result["train_env_cost"]]
+        entry["curve_per_seed"]["training_cost_rate"] = history.tolist()
+        per_seed["training_cost_rate"] = history[:, -1]
     if "unshielded" in final:  # a shield mode: its policy alone, too
         off = final["unshielded"]
-        entry["final_unshielded"] = {**{k: float(np.mean(off[k])) for k in keys},
+        entry["final_unshielded"] = {**{k: _pooled(off[k], k) for k in keys},
                                      "episodes": int(final_episodes * seeds)}  # fmt: skip
         entry["final_unshielded_per_seed"] = {k: [float(v) for v in off[k]] for k in keys}
         per_seed.update({f"unshielded_{k}": off[k] for k in keys})
@@ -150,6 +165,9 @@ def select_agents(result: dict, name: str, value: float) -> dict:
     out["eval"] = {k: take(v) for k, v in result["eval"].items()}
     for k in ("train_violations", "train_violations_early", "train_alarms"):
         out[k] = take(result[k])
+    for k in ("train_env_cost", "train_cost_rate"):  # absent for runs older than them
+        if k in result:
+            out[k] = take(result[k])
     out["seeds"] = [result["seeds"][i] for i in idx]
     out["params"] = jax.tree.map(lambda a: a[idx], result["params"])
     if "final" in result:

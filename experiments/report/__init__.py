@@ -14,6 +14,7 @@ from experiments.report.plots import MODE_COLORS, curves_from_results, plot_curv
 from experiments.report.schema import (
     CHECKER_METRICS,
     CHECKER_SPLITS,
+    COST_KEYS,
     MODE_LABELS,
     MODES,
     RESULTS_SCHEMA,
@@ -31,6 +32,7 @@ from experiments.report.tables import (
 __all__ = [
     "CHECKER_METRICS",
     "CHECKER_SPLITS",
+    "COST_KEYS",
     "MODES",
     "MODE_COLORS",
     "MODE_LABELS",

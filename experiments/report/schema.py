@@ -6,20 +6,26 @@
   checker's rates, its splits, and its metrics as ``results.json`` holds them.
 - :data:`RESULTS_SCHEMA` and :func:`validate_results`: the shape of ``results.json``, checked
   before anything is written.
+- :data:`COST_KEYS`: the evaluations' cost metrics, optional in ``final`` (results written
+  before them lack them, and still validate and render).
 
 Conventions for the optional extras that the report understands (all other extra keys are
 allowed and passed through untouched):
 
 - ``methods.<mode>.final_per_seed``: ``{"violation_rate": [S], "mean_reward": [S],
-  "success_rate": [S]}`` (any subset). When present (and ``iqm`` is not) the table shows
-  ``mean ± CI half-width``.
+  "success_rate": [S]}`` and the :data:`COST_KEYS` (any subset). When present (and ``iqm``
+  is not) the table shows ``mean ± CI half-width``.
 - ``methods.<mode>.iqm``: ``{metric: {"iqm", "lo", "hi", "per_seed"}}``
   (:func:`experiments.stats.summary`); the table shows ``IQM [lo, hi]``.
 - ``methods.<mode>.final_unshielded``: the shield modes' policy evaluated without its shield.
 - ``comparisons``: ``{name: {"p", "lo", "hi"}}`` probabilities of improvement.
 - ``methods.<mode>.curve_per_seed``: ``{"step": [T], "violation_rate": [S][T],
-  "mean_reward": [S][T], "success_rate": [S][T]}``, read by
+  "mean_reward": [S][T], "success_rate": [S][T]}`` (and the :data:`COST_KEYS` and
+  ``"training_cost_rate": [S][T]``), read by
   :func:`experiments.report.plots.curves_from_results`.
+- ``methods.<mode>.training_cost_rate`` (and ``_per_seed``): OmniSafe's cost rate, the env
+  cost of every training step over the number of steps, from the first update to the last;
+  ``training_cost_per_seed``: that cost; ``training_violations_per_seed``: the violations.
 - ``checker.transfer``: a metrics dict like ``checker.test`` (e.g. the 2Rooms checker on
   3Rooms-Key), or null.
 """
@@ -38,6 +44,7 @@ from agents.config import REWARD_MODES
 __all__ = [
     "CHECKER_METRICS",
     "CHECKER_SPLITS",
+    "COST_KEYS",
     "MODES",
     "MODE_LABELS",
     "RATE_KEYS",
@@ -66,6 +73,10 @@ CHECKER_METRICS: tuple[str, ...] = ("accuracy", "precision", "recall", "f1", "au
 CHECKER_SPLITS: tuple[str, ...] = ("test", "heldout", "transfer")
 
 _FINAL_KEYS = ("violation_rate", "mean_reward", "success_rate", "episodes")
+#: The evaluations' cost metrics (:func:`agents.evaluation.summarise`): the mean episode cost,
+#: and the longest run of consecutive costly steps of an episode, its mean and its maximum over
+#: the episodes (pooled over seeds: the maximum of theirs). Each a float >= 0.
+COST_KEYS: tuple[str, ...] = ("mean_cost", "mean_costly_run", "max_costly_run")
 _CURVE_KEYS = ("step", "violation_rate", "mean_reward", "success_rate")
 #: The per-method metrics that are rates (in [0, 1]); ``mean_reward`` is any finite real.
 RATE_KEYS = frozenset({"violation_rate", "success_rate"})
@@ -90,8 +101,13 @@ RESULTS_SCHEMA: dict[str, Any] = {
                 "mean_reward": "float",
                 "success_rate": "rate",
                 "episodes": "int>=1",
+                **{k: "optional: float>=0" for k in COST_KEYS},
             },
-            "training_violations": "int>=0",
+            "training_violations": "int>=0 (counted from the first update)",
+            "training_violations_per_seed": "optional: [int>=0] (one per seed)",
+            "training_cost_rate": "optional: float>=0 (env cost over env steps of training)",
+            "training_cost_rate_per_seed": "optional: [float>=0] (one per seed)",
+            "training_cost_per_seed": "optional: [float>=0] (one per seed)",
             "curve": [
                 {
                     "step": "int>=0 (non-decreasing along the list)",
@@ -101,7 +117,8 @@ RESULTS_SCHEMA: dict[str, Any] = {
                 }
             ],
             "seeds": "int>=1",
-            "final_per_seed": "optional: {violation_rate|mean_reward|success_rate: [seeds]}",
+            "final_per_seed": f"optional: {{violation_rate|mean_reward|success_rate|"
+            f"{'|'.join(COST_KEYS)}: [seeds]}}",
         }
     },
     "timing": {"total_s": "float>=0"},
@@ -172,6 +189,24 @@ def _check_int(x: Any, path: str, minimum: int) -> None:
         raise ValueError(f"{path}: expected an int >= {minimum}, got {_fmt(x)}")
 
 
+def _check_nonnegative(x: Any, path: str) -> None:
+    _check_real(x, path, minimum=0.0)
+
+
+def _check_count(x: Any, path: str) -> None:
+    _check_int(x, path, 0)
+
+
+def _check_seed_values(vals: Any, path: str, seeds: int, check) -> None:
+    """A list of one value per seed, each passing ``check(value, path)``."""
+    if not isinstance(vals, Sequence | np.ndarray) or isinstance(vals, str):
+        raise ValueError(f"{path}: expected a list, got {_fmt(vals)}")
+    if len(vals) != seeds:
+        raise ValueError(f"{path}: expected {seeds} values (one per seed), got {len(vals)}")
+    for j, v in enumerate(vals):
+        check(v, f"{path}[{j}]")
+
+
 def _check_metrics(m: Any, path: str) -> None:
     m = _require_mapping(m, path)
     for k in CHECKER_METRICS:
@@ -219,10 +254,20 @@ def validate_results(results: dict) -> None:
                 _check_rate(v, f"{p}.final.{k}")
             else:
                 _check_real(v, f"{p}.final.{k}")
+        for k in COST_KEYS:
+            if k in final:
+                _check_nonnegative(final[k], f"{p}.final.{k}")
 
         _check_int(_get(entry, "training_violations", p), f"{p}.training_violations", 0)
         _check_int(_get(entry, "seeds", p), f"{p}.seeds", 1)
         seeds = int(entry["seeds"])
+        if entry.get("training_cost_rate") is not None:
+            _check_nonnegative(entry["training_cost_rate"], f"{p}.training_cost_rate")
+        for k, check in (("training_violations_per_seed", _check_count),
+                         ("training_cost_rate_per_seed", _check_nonnegative),
+                         ("training_cost_per_seed", _check_nonnegative)):  # fmt: skip
+            if entry.get(k) is not None:
+                _check_seed_values(entry[k], f"{p}.{k}", seeds, check)
 
         curve = _get(entry, "curve", p)
         if not isinstance(curve, Sequence) or isinstance(curve, str | bytes):
@@ -250,16 +295,13 @@ def validate_results(results: dict) -> None:
             pp = f"{p}.final_per_seed"
             fps = _require_mapping(entry["final_per_seed"], pp)
             for k, vals in fps.items():
-                if k not in RATE_KEYS | {"mean_reward"}:
-                    continue  # extra per-seed arrays are allowed
-                if not isinstance(vals, Sequence | np.ndarray) or isinstance(vals, str):
-                    raise ValueError(f"{pp}.{k}: expected a list, got {_fmt(vals)}")
-                if len(vals) != seeds:
-                    raise ValueError(
-                        f"{pp}.{k}: expected {seeds} values (one per seed), got {len(vals)}"
-                    )
-                for j, v in enumerate(vals):
-                    (_check_rate if k in RATE_KEYS else _check_real)(v, f"{pp}.{k}[{j}]")
+                if k in RATE_KEYS:
+                    _check_seed_values(vals, f"{pp}.{k}", seeds, _check_rate)
+                elif k == "mean_reward":
+                    _check_seed_values(vals, f"{pp}.{k}", seeds, _check_real)
+                elif k in COST_KEYS:
+                    _check_seed_values(vals, f"{pp}.{k}", seeds, _check_nonnegative)
+                # extra per-seed arrays are allowed
 
     timing = _require_mapping(_get(results, "timing", ""), "timing")
     _check_real(_get(timing, "total_s", "timing"), "timing.total_s", minimum=0.0)

@@ -23,6 +23,7 @@ import numpy as np
 from experiments.report.schema import (
     CHECKER_METRICS,
     CHECKER_SPLITS,
+    COST_KEYS,
     MODE_LABELS,
     ordered_modes,
     validate_results,
@@ -59,11 +60,47 @@ def _cell(entry: Mapping, key: str, scale: float, digits: int, final: str = "fin
     return f"{float(entry[final][key]) * scale:.{digits}f}"
 
 
-def _count(entry: Mapping, key: str) -> str:
+def _count(entry: Mapping, key: str, digits: int = 0) -> str:
+    """A training figure of the entry (``entry[key]``): ``IQM [lo, hi]`` where ``iqm`` has it,
+    else its value, else ``n/a``."""
     summary = (entry.get("iqm") or {}).get(key)
     if summary is not None:
-        return f"{summary['iqm']:.0f} [{summary['lo']:.0f}, {summary['hi']:.0f}]"
-    return str(entry[key]) if key in entry else "n/a"
+        point, lo, hi = (summary[k] for k in ("iqm", "lo", "hi"))
+        return f"{point:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+    if key not in entry:
+        return "n/a"
+    return str(entry[key]) if digits == 0 else f"{float(entry[key]):.{digits}f}"
+
+
+def _finals(entry: Mapping) -> list[tuple[str, str]]:
+    """The evaluations of a mode's rows: as deployed, and for a shield mode its policy alone."""
+    off = [("final_unshielded", ", shield off")] if "final_unshielded" in entry else []
+    return [("final", ""), *off]
+
+
+def _costs_table(methods: Mapping) -> list[str]:
+    """The cost metrics' rows (:data:`COST_KEYS` and the training cost rate); none for results
+    written before they existed."""
+    if not any(k in e["final"] for e in methods.values() for k in COST_KEYS):
+        return []
+    lines = ["", "| Method | Episode cost | Longest costly run | ... its maximum "
+             "| Training cost rate |", "|---|---:|---:|---:|---:|"]  # fmt: skip
+    for mode in ordered_modes(methods):
+        e = methods[mode]
+        for final, note in _finals(e):
+            cells = [_cell(e, k, 1.0, digits, final) if k in e[final] else "n/a"
+                     for k, digits in zip(COST_KEYS, (3, 2, 1), strict=True)]  # fmt: skip
+            cells.append(_count(e, "training_cost_rate", 4))
+            lines.append(f"| {mode} ({MODE_LABELS.get(mode, mode)}{note}) | "
+                         + " | ".join(cells) + " |")  # fmt: skip
+    return lines + [
+        "",
+        "Final evaluation: the episode cost (the env's cost summed over an episode) and the "
+        "longest run of consecutive costly steps of an episode, averaged over episodes, and its "
+        "maximum over them; training cost rate: the env cost of every training step over "
+        "their number, from the first update (OmniSafe's). Interquartile mean over seeds [95% "
+        "stratified-bootstrap interval].",
+    ]
 
 
 def results_table(results: Mapping) -> str:
@@ -73,7 +110,9 @@ def results_table(results: Mapping) -> str:
     Method columns: final violation %, mean reward, success % and training violations (all,
     and in the first 20% of training): the interquartile mean over seeds with its 95%
     stratified-bootstrap interval where ``iqm`` summaries exist, else the mean; seeds, final
-    evaluation episodes. Checker rows: test, heldout, transfer (``n/a`` when null).
+    evaluation episodes. Where the results hold them, a second table gives the cost metrics
+    (:data:`~experiments.report.schema.COST_KEYS`, the training cost rate) the same way.
+    Checker rows: test, heldout, transfer (``n/a`` when null).
     """
     lines = [
         "| Method | Final violation % | Mean reward | Success % | Training violations "
@@ -83,9 +122,7 @@ def results_table(results: Mapping) -> str:
     methods = results["methods"]
     for mode in ordered_modes(methods):
         e = methods[mode]
-        finals = [("final", "")] + ([("final_unshielded", ", shield off")]
-                                    if "final_unshielded" in e else [])  # fmt: skip
-        for final, note in finals:
+        for final, note in _finals(e):
             lines.append(
                 f"| {mode} ({MODE_LABELS.get(mode, mode)}{note}) "
                 f"| {_cell(e, 'violation_rate', 100.0, 1, final)} "
@@ -101,6 +138,7 @@ def results_table(results: Mapping) -> str:
         "Interquartile mean over seeds [95% stratified-bootstrap interval]; training "
         "violations per seed, counted from the first update.",
     ]
+    lines += _costs_table(methods)
     comparisons = results.get("comparisons") or {}
     if comparisons:
         lines += ["", "| Comparison | P | 95% interval |", "|---|---:|---:|"]
@@ -233,7 +271,8 @@ def summarise(results: Mapping) -> str:
             f"  {mode:<{width}}  violations {_cell(e, 'violation_rate', 100.0, 1)}%"
             f"  reward {_cell(e, 'mean_reward', 1.0, 3)}"
             f"  success {_cell(e, 'success_rate', 100.0, 1)}%"
-            f"  training violations {_count(e, 'training_violations')}"
+            + (f"  cost {_cell(e, 'mean_cost', 1.0, 3)}" if "mean_cost" in e["final"] else "")
+            + f"  training violations {_count(e, 'training_violations')}"
             f"  ({int(e['seeds'])} seeds, {int(e['final']['episodes'])} episodes)"
         )
     chk = results.get("checker") or {}

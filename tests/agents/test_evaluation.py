@@ -15,6 +15,7 @@ from helpers.agents_cases import fast_jit
 import jaxgrid
 from agents.evaluation import play_episodes, summarise
 from jaxgrid.oracle import oracle_action
+from jaxgrid.types import TimeStep
 
 
 @pytest.fixture(scope="module")
@@ -97,12 +98,118 @@ def test_tracked_flags_hold_if_they_held_after_any_step_of_the_episode():
 
     # step_count >= 10 holds after some live step exactly when the episode lasted 10 steps
     track = lambda states: jnp.stack([states.step_count >= 10, states.step_count < 0], -1)  # noqa: E731
-    ep = jax.device_get(fast_jit(lambda k: play_episodes(lava, random_act, k, 16,
-                                                         track=track))(jax.random.PRNGKey(3)))
+    ep = jax.device_get(
+        fast_jit(lambda k: play_episodes(lava, random_act, k, 16, track=track))(
+            jax.random.PRNGKey(3)
+        )
+    )
     assert ep["tracked"].shape == (16, 2)
     np.testing.assert_array_equal(ep["tracked"][:, 0], ep["length"] >= 10)
     assert not ep["tracked"][:, 1].any()
     assert 0 < (ep["length"] >= 10).sum() < 16  # both kinds of episode occur
-    untracked = fast_jit(lambda k: play_episodes(lava, random_act, k, 16))(
-        jax.random.PRNGKey(3))
+    untracked = fast_jit(lambda k: play_episodes(lava, random_act, k, 16))(jax.random.PRNGKey(3))
     assert "tracked" not in untracked
+
+
+# ------------------------------------------------------------------------------ cost metrics
+# A scripted env: each episode plays one row of COSTS (its info["cost"] step by step) and ends
+# after LENGTHS[row] steps; the env keeps stepping (and costing) after that, as raw envs do.
+COSTS = np.array(
+    [
+        [0, 1, 1, 0, 1, 1, 1, 0],  # cost 5, longest run 3 (the second)
+        [1, 1, 1, 1, 0, 0, 0, 0],  # cost 4, run 4 from the first step
+        [0, 0, 0, 0, 0, 0, 0, 0],  # no cost
+        [1, 1, 0, 1, 1, 1, 1, 1],  # ends after 3 steps: cost 2, run 2 (the rest never counts)
+        [0, 0, 0, 0, 0, 1, 1, 1],  # a run of 3 up to the last step
+    ],
+    np.float32,
+)
+LENGTHS = np.array([8, 8, 8, 3, 8])
+EPISODE_COST = np.array([5.0, 4.0, 0.0, 2.0, 3.0])
+LONGEST_RUN = np.array([3, 4, 0, 2, 3])
+
+
+class ScriptedCosts:
+    """Episodes whose costs are a row of :data:`COSTS`, drawn by the reset key."""
+
+    max_steps = COSTS.shape[1]
+
+    def _ts(self, state, cost):
+        row, t = state
+        done = t >= jnp.asarray(LENGTHS)[row]
+        obs = {"direction": jnp.zeros((), jnp.int32), "row": row}
+        return TimeStep(observation=obs, reward=jnp.zeros((), jnp.float32), terminated=done,
+                        truncated=jnp.zeros((), bool), discount=jnp.ones((), jnp.float32),
+                        info={"cost": cost, "violation": cost > 0})  # fmt: skip
+
+    def reset(self, key):
+        state = (jax.random.randint(key, (), 0, len(COSTS)), jnp.zeros((), jnp.int32))
+        return state, self._ts(state, jnp.zeros((), jnp.float32))
+
+    def step(self, state, action):
+        row, t = state
+        cost = jnp.asarray(COSTS)[row, jnp.minimum(t, self.max_steps - 1)]
+        state = (row, t + 1)
+        return state, self._ts(state, cost)
+
+
+def test_episode_cost_and_longest_costly_run_of_scripted_episodes():
+    env = ScriptedCosts()
+    idle = lambda obs, key: jnp.zeros(obs["direction"].shape, jnp.int32)  # noqa: E731
+    # Which script each episode plays, read back through ``track``.
+    track = lambda states: states[0][:, None] == jnp.arange(len(COSTS))  # noqa: E731
+    play = fast_jit(lambda k: play_episodes(env, idle, k, 24, track=track))
+    ep = jax.device_get(play(jax.random.PRNGKey(0)))
+    rows = ep["tracked"].argmax(axis=1)
+    assert (ep["tracked"].sum(axis=1) == 1).all() and len(set(rows)) == len(COSTS)
+    np.testing.assert_array_equal(ep["length"], LENGTHS[rows])
+    np.testing.assert_array_equal(ep["cost"], EPISODE_COST[rows])
+    np.testing.assert_array_equal(ep["costly_run"], LONGEST_RUN[rows])
+    assert ep["cost"].dtype == np.float32 and ep["costly_run"].dtype == np.int32
+    rates = jax.device_get(summarise(ep))
+    np.testing.assert_allclose(rates["mean_cost"], EPISODE_COST[rows].mean(), rtol=1e-6)
+    np.testing.assert_allclose(rates["mean_costly_run"], LONGEST_RUN[rows].mean(), rtol=1e-6)
+    assert rates["max_costly_run"] == 4.0
+
+
+class CostLog:
+    """An env that also logs in its state which steps of the episode cost (bool (T,))."""
+
+    def __init__(self, env):
+        self.env, self.max_steps = env, env.max_steps
+
+    def reset(self, key):
+        state, ts = self.env.reset(key)
+        return (state, jnp.zeros((), jnp.int32), jnp.zeros((self.max_steps,), bool)), ts
+
+    def step(self, state, action):
+        state, t, log = state
+        state, ts = self.env.step(state, action)
+        log = log.at[jnp.minimum(t, self.max_steps - 1)].set(ts.info["cost"] > 0)
+        return (state, t + 1, log), ts
+
+
+def test_cost_metrics_match_the_costly_steps_of_hazard_rooms_episodes():
+    """Lava costs without ending the episode: walks along its strips make runs of costs."""
+    env = CostLog(jaxgrid.make("HazardRooms-v0", sentences=("avoid lava",), max_steps=60))
+
+    def mostly_forward(obs, key):
+        k1, k2 = jax.random.split(key)
+        shape = obs["direction"].shape
+        turn = jax.random.randint(k2, shape, 0, 2)  # left or right
+        return jnp.where(jax.random.uniform(k1, shape) < 0.7, 2, turn)
+
+    play = fast_jit(lambda k: play_episodes(env, mostly_forward, k, 64, track=lambda s: s[2]))
+    ep = jax.device_get(play(jax.random.PRNGKey(1)))
+    costly = ep["tracked"]  # (E, T): which steps of each episode cost (none after its end)
+
+    def longest(flags):
+        best = run = 0
+        for f in flags:
+            run = run + 1 if f else 0
+            best = max(best, run)
+        return best
+
+    np.testing.assert_array_equal(ep["cost"], costly.sum(axis=1))
+    np.testing.assert_array_equal(ep["costly_run"], [longest(f) for f in costly])
+    assert ep["costly_run"].max() >= 2  # the case an average cost hides does occur

@@ -177,6 +177,71 @@ def test_run_result(uninterrupted):
     assert all(np.all(np.isfinite(x)) for x in leaves(r["params"]))
 
 
+def test_training_violations_and_costs_are_counted_from_the_first_update(uninterrupted):
+    """Every record's cumulative figures sum its agent's chunks from the first; the cost rate
+    is that cost over the steps so far (OmniSafe's); TwoRooms' constraints all forbid (no
+    budget), so each costly step is a violation."""
+    r = uninterrupted
+    for i, seed in enumerate(SEEDS):
+        mine = sorted((x for x in r["records"] if x["seed"] == seed), key=lambda x: x["chunk"])
+        costs = np.cumsum([x["train/env_cost"] for x in mine])
+        violations = np.cumsum([x["train/violations"] for x in mine])
+        assert [x["train/cum_env_cost"] for x in mine] == costs.tolist()
+        assert [x["train/cum_violations"] for x in mine] == violations.tolist()
+        assert [x["train/cum_env_cost_rate"] for x in mine] == (costs / r["steps"]).tolist()
+        assert [x["train/env_cost"] for x in mine] == [x["train/violations"] for x in mine]
+        np.testing.assert_array_equal(r["train_cost_rate"][i], costs / r["steps"])
+        assert r["train_env_cost"][i] == costs[-1] and r["train_violations"][i] == violations[-1]
+    for k in ("mean_cost", "mean_costly_run", "max_costly_run"):
+        assert r["eval"][k].shape == (2, TINY.num_chunks)
+
+
+def test_chunk_records_sum_each_update_of_the_chunk():
+    """A chunk's record sums all its updates, the first included; the early count takes the
+    updates of the first 20% of training (TINY: update 0 of 4)."""
+    assert runner.early_updates(TINY) == 1
+    names = ("episodes", "successes", "episode_return", "violations", "alarms", "blocked",
+             "blocked_rate", "cost_rate", "episode_cost", "novelty_rate", "lagrange", "loss",
+             "entropy", "approx_kl")  # fmt: skip
+    train = {k: np.zeros((1, TINY.eval_every), np.float32) for k in names}
+    train["violations"] = np.array([[3, 5]], np.int32)
+    train["env_cost"] = np.array([[4.0, 6.0]], np.float32)
+    metrics = {"train": train, "eval": {"mean_cost": np.array([0.5], np.float32)}}
+    (first,) = runner.chunk_records(TINY, 0, [7], metrics, np.array([8]), None, np.array([10.0]))
+    assert first["train/violations"] == 8 and first["train/violations_early"] == 3
+    assert first["train/cum_violations"] == 8 and first["eval/mean_cost"] == 0.5
+    assert first["train/env_cost"] == 10.0 and first["train/cum_env_cost"] == 10.0
+    assert first["train/cum_env_cost_rate"] == 10.0 / (2 * TINY.batch_size)
+    (second,) = runner.chunk_records(TINY, 1, [7], metrics, np.array([16]), None,
+                                     np.array([20.0]))  # fmt: skip
+    assert second["train/violations_early"] == 0 and second["train/cum_violations"] == 16
+    assert second["train/cum_env_cost_rate"] == 20.0 / (4 * TINY.batch_size)
+    (unknown,) = runner.chunk_records(TINY, 1, [7], metrics, np.array([16]))
+    assert unknown["train/cum_env_cost"] is None and unknown["train/cum_env_cost_rate"] is None
+    assert unknown["train/env_cost"] == 10.0
+
+
+def test_a_run_logged_before_the_cost_metrics_resumes(tmp_path, uninterrupted):
+    """A run directory whose records predate the cost metrics resumes to the same agents;
+    the cumulative cost, unknown, is logged as null and left out of the result."""
+    new = ("eval/mean_cost", "eval/mean_costly_run", "eval/max_costly_run", "train/env_cost",
+           "train/cum_env_cost", "train/cum_env_cost_rate")  # fmt: skip
+    run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False, max_chunks=1)
+    log = tmp_path / "metrics.jsonl"
+    old = [{k: v for k, v in r.items() if k not in new} for r in read_jsonl(log)]
+    log.write_text("".join(json.dumps(r) + "\n" for r in old))
+    checkpoint.record_digests(checkpoint.make_manager(tmp_path / "checkpoints"), tmp_path)
+    done = run(TINY, seeds=SEEDS, out_dir=tmp_path, progress=False)
+    assert done["complete"]
+    for a, b in zip(leaves(done["params"]), leaves(uninterrupted["params"]), strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(done["train_violations"], uninterrupted["train_violations"])
+    last = [r for r in done["records"] if r["chunk"] == 1]
+    assert all(r["train/cum_env_cost"] is None and "train/env_cost" in r for r in last)
+    assert "train_cost_rate" not in done and "train_env_cost" not in done
+    assert set(done["eval"]) == {"violation_rate", "mean_reward", "success_rate"}
+
+
 def test_checkpoint_resume_is_bit_identical(tmp_path, uninterrupted):
     # One compilation serves every call, the resumed (restored) state included.
     with count_compiles() as compiled:

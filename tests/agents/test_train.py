@@ -69,6 +69,15 @@ def test_lagrange_multiplier_rises_with_cost(lagrangian_train):
     assert np.all(np.asarray(out["runner"].lagrange) == lam[:, -1])
 
 
+def test_env_cost_is_the_monitors_whatever_the_learners_cost(lagrangian_train):
+    """The learner's cost here is the checker's alarm on every step (cost rate 1); the env's
+    cost stays the monitor's: on TwoRooms, whose constraints all forbid, one per violation."""
+    t = lagrangian_train[0]["train"]
+    assert t["env_cost"].shape == t["violations"].shape == (2, *t["loss"].shape[1:])
+    np.testing.assert_array_equal(t["env_cost"], t["violations"])
+    assert t["env_cost"].sum() < t["cost_rate"].sum() * LAGRANGIAN.batch_size
+
+
 @pytest.mark.slow  # penalty_start is an ablation flag; the multiplier is tested above
 def test_lagrange_multiplier_waits_for_penalty_start(tiny_checker):
     """Before ``penalty_start`` the multiplier stays at ``lagrangian_init``; then it moves."""

@@ -50,3 +50,52 @@ def test_assembled_results_hold_shields_early_violations_and_comparisons(tmp_pat
                                 for k in ("training_violations",
                                           "training_violations_first20")}  # fmt: skip
     assert "shield off" in results_table(results)
+    assert "Episode cost" not in results_table(results)  # runs without the cost metrics
+
+
+def _costly_run(shield: bool = False) -> dict:
+    """A run of three seeds with the cost metrics of ``agents.runner.run``'s result."""
+    r = _run(3, [3, 4, 5], [1, 1, 1], shield=shield)
+    costs = {"mean_cost": np.array([0.5, 1.0, 3.0]), "mean_costly_run": np.array([1.0, 1.0, 2.5]),
+             "max_costly_run": np.array([2.0, 3.0, 9.0])}  # fmt: skip
+    r["final"].update(costs)
+    if shield:
+        r["final"]["unshielded"].update({k: v + 1 for k, v in costs.items()})
+    r["eval"].update({k: np.full((3, 2), 0.25) for k in costs})
+    # Cost over training so far after each of the two evaluations (steps 100 and 200).
+    r["train_env_cost"] = np.array([2.0, 4.0, 10.0])
+    r["train_cost_rate"] = np.array([[0.01, 0.01], [0.0, 0.02], [0.05, 0.05]])
+    return r
+
+
+def test_assembled_results_hold_the_cost_metrics_per_seed(tmp_path):
+    cfg = pipeline.parse_args(["--quick", "--seeds", "3", "--out", str(tmp_path)],
+                              two_rooms.SCENARIO)  # fmt: skip
+    runs = {"shaped": _costly_run(), "shield": _costly_run(shield=True),
+            "none": _run(3, [1, 2, 3], [0, 0, 0])}  # fmt: skip
+    results = assembly.assemble(cfg, tmp_path, runs, {"test": dict(METRICS), "heldout": None},
+                                1.0)  # fmt: skip
+    validate_results(results)
+    shaped = results["methods"]["shaped"]
+    # Pooled over seeds: the mean of the means, the maximum of the maxima.
+    assert shaped["final"]["mean_cost"] == pytest.approx(1.5)
+    assert shaped["final"]["max_costly_run"] == 9.0
+    assert shaped["final_per_seed"]["mean_costly_run"] == [1.0, 1.0, 2.5]
+    assert shaped["iqm"]["max_costly_run"]["iqm"] == pytest.approx(14 / 3)  # three seeds: mean
+    assert shaped["training_cost_rate_per_seed"] == [0.01, 0.02, 0.05]  # after the last update
+    assert shaped["training_cost_rate"] == pytest.approx(0.08 / 3)
+    assert shaped["training_cost_per_seed"] == [2.0, 4.0, 10.0]
+    assert shaped["training_violations_per_seed"] == [3, 4, 5]
+    assert shaped["iqm"]["training_cost_rate"]["per_seed"] == [0.01, 0.02, 0.05]
+    assert shaped["curve_per_seed"]["training_cost_rate"][1] == [0.0, 0.02]
+    assert shaped["curve_per_seed"]["mean_cost"] == [[0.25, 0.25]] * 3
+    assert shaped["curve"][0]["max_costly_run"] == 0.25
+    shield = results["methods"]["shield"]
+    assert shield["final_unshielded"]["max_costly_run"] == 10.0
+    assert shield["iqm"]["unshielded_mean_cost"]["per_seed"] == [1.5, 2.0, 4.0]
+    # A run without them (older than the metrics) has none, and its rows say n/a.
+    assert "mean_cost" not in results["methods"]["none"]["final"]
+    assert "training_cost_rate" not in results["methods"]["none"]
+    row = next(ln for ln in results_table(results).splitlines()
+               if ln.startswith("| none (unconstrained) | n/a"))  # fmt: skip
+    assert row == "| none (unconstrained) | n/a | n/a | n/a | n/a |"

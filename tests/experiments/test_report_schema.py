@@ -9,8 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.report_cases import with_costs
 
 from experiments.report import MODES, checker_rates, validate_results
+from jaxgrid.io import read_json
+
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
 
 
 def test_validate_accepts_good(good):
@@ -119,3 +123,31 @@ def test_checker_rates_fill_what_a_checker_evaluation_leaves_undefined():
                "ece": 0.1, "n": 40}  # fmt: skip
     assert checker_rates(metrics) == {"accuracy": 0.9, "precision": 0.0, "recall": 0.0,
                                       "f1": 0.0, "auroc": 0.5, "ece": 0.1}  # fmt: skip
+
+
+def test_the_cost_metrics_are_optional_and_checked_where_present(good):
+    validate_results(good)  # results written before the cost metrics
+    costly = with_costs(copy.deepcopy(good))
+    validate_results(costly)
+    for path, value, expected in [
+        (("final", "mean_cost"), -0.1, "final.mean_cost: expected a float >= 0.0"),
+        (("final", "max_costly_run"), float("nan"), "final.max_costly_run: expected a finite"),
+        (("final_per_seed", "mean_costly_run"), [1.0], "final_per_seed.mean_costly_run: "
+         "expected 3 values"),
+        (("final_per_seed", "max_costly_run", 2), -1.0, "final_per_seed.max_costly_run[2]"),
+        (("training_cost_rate",), "low", "training_cost_rate: expected a finite float"),
+        (("training_cost_rate_per_seed", 0), -0.5, "training_cost_rate_per_seed[0]: expected "
+         "a float >= 0.0"),
+        (("training_cost_per_seed",), [1.0, 2.0], "training_cost_per_seed: expected 3 values"),
+        (("training_violations_per_seed", 1), 2.5, "training_violations_per_seed[1]: expected "
+         "an int >= 0"),
+    ]:  # fmt: skip
+        bad = _mutate(copy.deepcopy(costly), ("methods", "shaped", *path), value)
+        with pytest.raises(ValueError) as err:
+            validate_results(bad)
+        assert str(err.value).startswith(f"methods.shaped.{expected}"), str(err.value)
+
+
+@pytest.mark.parametrize("name", sorted(p.parent.name for p in RESULTS.glob("*/results.json")))
+def test_published_results_written_before_the_cost_metrics_still_validate(name):
+    validate_results(read_json(RESULTS / name / "results.json"))

@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers.report_cases import METRICS
+from helpers.report_cases import COST_RATES, COSTS, METRICS, with_costs
 
 from experiments.report import MODES, results_table, summarise, validate_results, write_report
 
@@ -115,3 +115,31 @@ def test_the_shields_own_checker_is_validated_tabled_and_summarised(good):
     good["checker"]["shield"]["test"]["auroc"] = 1.5
     with pytest.raises(ValueError, match=r"^checker\.shield\.test\.auroc: expected a float"):
         validate_results(good)
+
+
+def _iqm_cell(values, scale: float, digits: int) -> str:
+    from experiments.stats import summary
+
+    point, lo, hi = (summary(values)[k] * scale for k in ("iqm", "lo", "hi"))
+    return f"{point:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def test_the_cost_metrics_have_their_own_table_where_the_results_hold_them(good):
+    assert "Episode cost" not in results_table(good)  # results written before them
+    assert " cost " not in summarise(good)
+    md = results_table(with_costs(good))
+    rows = [ln for ln in md.splitlines() if ln.startswith("| ")]
+    header = next(i for i, ln in enumerate(rows) if ln.startswith("| Method | Episode cost"))
+    cost_rows = rows[header + 1 :]
+    expected = " | ".join([_iqm_cell(COSTS["mean_cost"], 1, 3),
+                           _iqm_cell(COSTS["mean_costly_run"], 1, 2),
+                           _iqm_cell(COSTS["max_costly_run"], 1, 1),
+                           _iqm_cell(COST_RATES, 1, 4)])  # fmt: skip
+    assert f"| checker (checker-shaped) | {expected} |" in cost_rows
+    assert expected.startswith("0.400 [0.200, 0.600] | 1.50 [")  # three seeds: their mean
+    # A shield's policy alone: its pooled episode cost; the same training.
+    off = next(ln for ln in cost_rows if ln.startswith("| shield (checker shield, shield off)"))
+    assert off.split(" | ")[1:3] == ["0.900", "n/a"] and off.endswith(
+        f"| {_iqm_cell(COST_RATES, 1, 4)} |"
+    )
+    assert "cost 0.400 [0.200, 0.600]" in summarise(with_costs(good))

@@ -7,7 +7,7 @@ import json
 
 from agents.config import REWARD_MODES
 from experiments import pipeline
-from experiments.report import validate_results
+from experiments.report import COST_KEYS, validate_results
 
 OUTPUTS = ("results.json", "results.md", "curves.png", "checker.json", "episodes.gif",
            "metrics.jsonl", "config.json")  # fmt: skip
@@ -31,6 +31,14 @@ def check_outputs(out, experiment: str, modes=REWARD_MODES, seeds=2, final_episo
         assert entry["seeds"] == seeds
         assert entry["final"]["episodes"] == seeds * final_episodes
         assert len(entry["curve"]) >= 1
+        # The field's cost metrics, per seed and summarised.
+        assert set(COST_KEYS) <= set(entry["final_per_seed"]) and set(COST_KEYS) <= set(
+            entry["iqm"]
+        )
+        for k in ("training_cost_rate_per_seed", "training_violations_per_seed"):
+            assert len(entry[k]) == seeds, k
+        assert len(entry["curve_per_seed"]["training_cost_rate"][0]) == len(entry["curve"])
+    assert "| Method | Episode cost |" in (out / "results.md").read_text()
     records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     assert {r["mode"] for r in records} == set(modes)
     assert (out / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

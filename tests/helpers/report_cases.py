@@ -57,3 +57,29 @@ def results() -> dict:
         "timing": {"total_s": 123.4},
         "extra_top_level": {"anything": [1, 2, 3]},
     }
+
+
+#: Per-seed cost metrics of :func:`with_costs` (three seeds).
+COSTS = {"mean_cost": [0.2, 0.4, 0.6], "mean_costly_run": [1.0, 1.5, 2.0],
+         "max_costly_run": [3.0, 4.0, 8.0]}  # fmt: skip
+COST_RATES = [0.001, 0.002, 0.003]
+
+
+def with_costs(results: dict) -> dict:
+    """``results`` (of :func:`results`) with the cost metrics as ``experiments.assembly``
+    writes them: pooled and per-seed finals, the training cost rate, their IQM summaries."""
+    from experiments.stats import summary
+
+    for entry in results["methods"].values():
+        entry["final"].update({k: float(np.mean(v)) for k, v in COSTS.items()},
+                              max_costly_run=max(COSTS["max_costly_run"]))  # fmt: skip
+        entry["final_per_seed"].update({k: list(v) for k, v in COSTS.items()})
+        entry["training_cost_rate"] = float(np.mean(COST_RATES))
+        entry["training_cost_rate_per_seed"] = list(COST_RATES)
+        entry["training_cost_per_seed"] = [r * 20_000 for r in COST_RATES]
+        entry["training_violations_per_seed"] = [1234] * entry["seeds"]
+        entry["iqm"] = {k: summary(v) for k, v in
+                        {**COSTS, "training_cost_rate": COST_RATES}.items()}  # fmt: skip
+        if "final_unshielded" in entry:
+            entry["final_unshielded"].update(mean_cost=0.9)
+    return results
