@@ -39,9 +39,9 @@ BENCHMARK_COLUMNS: tuple[tuple[str, str, float], ...] = (
     ("violation_rate", "Final violation %", 100.0),
     ("success_rate", "Success %", 100.0),
     ("mean_reward", "Return", 1.0),
-    ("episode_cost", "Episode cost", 1.0),
+    ("mean_cost", "Episode cost", 1.0),
     ("training_violations", "Training violations", 1.0),
-    ("longest_costly_run", "Longest costly run", 1.0),
+    ("mean_costly_run", "Longest costly run", 1.0),
 )
 
 
