@@ -67,6 +67,7 @@ from jaxgrid.constants import (
     YELLOW,
 )
 from jaxgrid.constrained import ConstrainedEnvironment, ConstrainedExtras, EpisodeConstraint
+from jaxgrid.contents import ALL_COLOURS, Contents
 from jaxgrid.dynamics import get_cell, transition
 from jaxgrid.environment import check_action
 from jaxgrid.oracle import distance_field, passable_cells
@@ -242,6 +243,10 @@ class HazardRooms(ConstrainedEnvironment):
             self.constraint_table()  # parses and checks every sentence now
             for sentence in dict.fromkeys(self.sentences):
                 _check_satisfiable(self, sentence)
+
+    def contents(self) -> Contents:
+        doors = [t.colour for t in HAZARD_ROOMS_TARGETS if t.kind == "door"]
+        return Contents(door=doors, lava=True, floor=HAZARD_ROOMS_FLOORS, key=ALL_COLOURS)
 
     def min_size(self):
         # Every room interior at least 3x3: room for a strip and a cell beside each door.
