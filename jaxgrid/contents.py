@@ -126,7 +126,8 @@ class Contents:
             for t in needs:
                 word = self._missing_target(t)
                 if word is not None:
-                    what = t.kind if t.colour is None else f"{t.colour} {t.kind}"
+                    what = " ".join(["a"] * (t.kind != "lava") + [t.colour or "", t.kind])
+                    what = " ".join(what.split())  # "lava", "a key", "a red door"
                     return word, what
         return None
 
@@ -141,7 +142,7 @@ class Contents:
         if found is not None:
             word, what = found
             raise ValueError(
-                f"{constraint.sentence!r}: {where} never holds a {what} (the word {word!r}); "
+                f"{constraint.sentence!r}: {where} never holds {what} (the word {word!r}); "
                 f"it holds {self.describe()}"
             )
 

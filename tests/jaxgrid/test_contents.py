@@ -56,7 +56,7 @@ def test_levels_without_a_nameable_thing_declare_nothing():
 
 def test_check_names_the_missing_word():
     doorkey = Contents(door={"yellow"}, key={"yellow"})
-    with pytest.raises(ValueError, match=r"never holds a lava \(the word 'lava'\)"):
+    with pytest.raises(ValueError, match=r"never holds lava \(the word 'lava'\)"):
         doorkey.check(L.parse("avoid lava"), "DoorKey")
     with pytest.raises(ValueError, match=r"never holds a red door \(the word 'red'\)"):
         doorkey.check(L.parse("do not use the red door"), "DoorKey")
