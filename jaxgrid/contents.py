@@ -90,6 +90,12 @@ class Contents:
         """Whether nothing a constraint names can occur here."""
         return not any(self.colours(k) for k in KINDS)
 
+    @property
+    def constrainable(self) -> bool:
+        """Whether a constraint can be said here: every clause names cells to enter (a door,
+        lava or a floor); keys, balls and boxes only trigger."""
+        return bool(self.door or self.lava or self.floor)
+
     def describe(self) -> str:
         """What a level holds, in words ("yellow doors, lava, yellow keys"; "nothing a
         constraint can name")."""
@@ -99,7 +105,7 @@ class Contents:
                 parts += ["lava"] if self.lava else []
             elif getattr(self, kind):
                 colours = "/".join(c for c in COLOR_NAMES if c in getattr(self, kind))
-                parts.append(f"{colours} {kind}s")
+                parts.append(f"{colours} {kind}{'es' if kind == 'box' else 's'}")
         return ", ".join(parts) or "nothing a constraint can name"
 
     # --- constraints ----------------------------------------------------------------------

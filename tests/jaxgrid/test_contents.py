@@ -78,3 +78,6 @@ def test_contents_refuse_bad_declarations_and_compare():
     assert Contents(lava=True) <= every and not every <= Contents(lava=True)
     assert (Contents(lava=True) | Contents(door={"red"})) == Contents(door={"red"}, lava=True)
     assert NOTHING.empty and NOTHING.describe() == "nothing a constraint can name"
+    objects = Contents(key=ALL_COLOURS, ball={"red"})  # triggers only: no clause to say
+    assert not objects.empty and not objects.constrainable
+    assert Contents(floor={"blue"}).constrainable
