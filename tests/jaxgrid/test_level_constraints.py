@@ -196,3 +196,48 @@ def test_a_constrained_level_keeps_its_configuration_with_its_level():
     lava_map = jaxgrid.from_ascii("##########\n##>>V...##\n##....G.##\n##########")
     assert lava_map.contents() == Contents(lava=True)
     assert isinstance(constrain(lava_map, constraint="avoid lava"), ConstrainedLevel)
+
+
+# --- adapters -------------------------------------------------------------------------------
+def test_gymnasium_passes_a_constraint_through_single_and_vector():
+    gym = pytest.importorskip("gymnasium")
+    from gymnasium.utils.env_checker import check_env
+
+    import jaxgrid.gym  # noqa: F401  (registers the ids)
+
+    kwargs = dict(constraint="avoid lava", lava="cost")
+    env = gym.make("jaxgrid/MiniGrid-LavaGapS5-v0", **kwargs)
+    check_env(env.unwrapped, skip_render_check=True)
+    entered = 0
+    for seed in range(6):  # LavaGapS5: lava ahead of the agent's start unless the gap is
+        obs, info = env.reset(seed=seed)
+        assert L.detokenize(obs["constraint"]) == "avoid lava" and info["cost"] == 0.0
+        obs, _, terminated, _, info = env.step(2)
+        entered += info["cost"] == 1.0
+        assert not terminated and info["violation"] == (info["cost"] == 1.0)
+    assert entered > 0  # entered lava, which costs and does not end the episode
+    venv = gym.make_vec(f"jaxgrid/{LAVA_ID}", num_envs=4,
+                        vectorization_mode="vector_entry_point", **kwargs)  # fmt: skip
+    obs, info = venv.reset(seed=0)
+    assert obs["constraint"].shape == (4, LEVELS.max_len) and info["cost"].shape == (4,)
+    obs, _, _, _, info = venv.step(np.full(4, 2))
+    assert info["cost"].dtype == np.float32 and info["violation"].dtype == np.bool_
+
+
+def test_gymnax_runs_a_constrained_level():
+    jgx = pytest.importorskip("jaxgrid.gymnax")
+    env, params = jgx.make("MiniGrid-LavaGapS5-v0", constraint="avoid lava", lava="cost")
+    plain, _ = jgx.make("MiniGrid-LavaGapS5-v0")
+    width = env.observation_space(params).shape[0] - plain.observation_space(params).shape[0]
+    assert width == LEVELS.max_len * LEVELS.vocab_size  # the constraint's one-hot tokens
+    keys = jax.random.split(jax.random.key(0), 8)
+    obs, state = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+    step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, None, None)))
+    total = 0.0
+    for _ in range(2):  # forward: into the lava ahead unless the gap is there
+        _, state, _, terminated, _, info = step(keys, state, jnp.int32(2), params)
+        total += float(info["cost"].sum())
+        assert not bool(terminated.any())
+    assert obs.shape == (8, env.observation_space(params).shape[0]) and total > 0
+    dict_env, _ = jgx.make(LAVA_ID, observation="dict", constraint="avoid lava")
+    assert set(dict_env.observation_space(params).spaces) == {"image", "direction", "constraint"}
