@@ -306,7 +306,6 @@ def sentence_draw(
     parsed = [_parse(s) for s in sentences]
     for c in parsed:
         contents.check(c, where)
-        LEVELS.tokenize(c.sentence)  # fits the token layout (it always does: the language's)
     n = len(sentences)
     return SentenceDraw(
         sentences=tuple(c.sentence for c in parsed),
@@ -341,7 +340,7 @@ class LevelExtras(ConstrainedExtras):
 _CONFIG = ("width", "height", "max_steps", "view_size", "see_through_walls")
 
 
-class ConstrainedLevel(ConstrainedEnvironment):
+class ConstrainedLevel(ConstrainedEnvironment, kw_only=True):
     """A level with a constraint per episode; build it with :func:`constrain` (the module
     docstring says what it keeps and adds).
 
@@ -352,8 +351,8 @@ class ConstrainedLevel(ConstrainedEnvironment):
     from it; the observation adds ``constraint`` and ``info`` the constraint's keys.
     """
 
-    level: Environment = None
-    draw: SentenceDraw = struct.field(pytree_node=False, default=None)
+    level: Environment
+    draw: SentenceDraw = struct.field(pytree_node=False)
     lava: str = struct.field(pytree_node=False, default="lethal")
 
     def __post_init__(self):
