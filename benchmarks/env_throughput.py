@@ -20,11 +20,16 @@ of the final observation, so XLA cannot dead-code-eliminate the observation comp
 Farama ``minigrid`` is plain Python: one env, a Python loop, ``reset`` on
 terminated/truncated, random actions from NumPy. It is measured at N=1 only.
 
+``jaxgrid-constrained`` is the same level with a constraint (``--constraint``, a budget on
+DoorKey's yellow door by default; ``jaxgrid.make(id, constraint=...)``): the table then
+gives its step time over the unconstrained one's, measured in the same run.
+
 Usage::
 
     python -m benchmarks.env_throughput                      # defaults, ~2-3 min on 2 cores
     python -m benchmarks.env_throughput --num-envs 1 256 --libs jaxgrid xminigrid
     python -m benchmarks.env_throughput --json runs/env_throughput.json
+    python -m benchmarks.env_throughput --libs jaxgrid jaxgrid-constrained --num-envs 4096
 
 Quote ratios measured in one run, not absolute numbers (the machine is shared).
 """
@@ -57,6 +62,9 @@ from jaxgrid.io import write_json
 
 JAX_LIBS = ("jaxgrid", "navix", "xminigrid")
 ALL_LIBS = (*JAX_LIBS, "minigrid")
+#: The constrained level's variant, measured when asked (``--libs``), against ``jaxgrid``.
+CONSTRAINED_LIB = "jaxgrid-constrained"
+DEFAULT_CONSTRAINT = "do not use the yellow door more than twice"
 DEFAULT_NUM_ENVS = (1, 256, 4096)
 # Env steps per measurement (N * T) when --steps is not given: on a 2-core CPU the JAX
 # peers run at ~1e4 (N=1) to ~5e5 steps/s, so one timed call takes about 0.1-2 s and the
@@ -91,10 +99,12 @@ class Adapter:
 DEFAULT_ENV_ID = "MiniGrid-DoorKey-8x8-v0"
 
 
-def _make_jaxgrid(env_id: str = DEFAULT_ENV_ID) -> Adapter:
+def _make_jaxgrid(env_id: str = DEFAULT_ENV_ID, constraint: str | None = None) -> Adapter:
     import jaxgrid
 
-    env = jaxgrid.wrappers.AutoReset(jaxgrid.make(env_id))
+    given = {} if constraint is None else {"constraint": constraint}
+    level = jaxgrid.make(env_id, **given)
+    env = jaxgrid.wrappers.AutoReset(level)
 
     def step(env_state, action):
         state, _ = env_state
@@ -113,8 +123,16 @@ def _make_jaxgrid(env_id: str = DEFAULT_ENV_ID) -> Adapter:
             "observation": "MiniGrid egocentric 7x7x3 uint8 image (with occlusion)",
             "auto_reset": "jaxgrid.wrappers.AutoReset (same-step reset, selected with jnp.where)",
             "actions": "uniform over the 7 MiniGrid actions",
+            **({} if constraint is None else {"constraint": constraint}),
         },
     )
+
+
+def _make_jaxgrid_constrained(
+    env_id: str = DEFAULT_ENV_ID, constraint: str = DEFAULT_CONSTRAINT
+) -> Adapter:
+    """jaxgrid's level with a constraint (its monitor in the state, cost in the info)."""
+    return dataclasses.replace(_make_jaxgrid(env_id, constraint), lib=CONSTRAINED_LIB)
 
 
 def navix_id(env_id: str) -> str:
@@ -201,9 +219,10 @@ def _make_jaxgrid_masked(env_id: str = DEFAULT_ENV_ID) -> Adapter:
     )  # fmt: skip
 
 
-_ADAPTERS: dict[str, Callable[[], Adapter]] = {
+_ADAPTERS: dict[str, Callable[..., Adapter]] = {
     "jaxgrid": _make_jaxgrid,
     "jaxgrid-masked": _make_jaxgrid_masked,
+    CONSTRAINED_LIB: _make_jaxgrid_constrained,
     "navix": _make_navix,
     "xminigrid": _make_xminigrid,
 }
@@ -237,23 +256,32 @@ def make_rollout(adapter: Adapter, num_envs: int, steps: int) -> Callable:
 
 
 @functools.cache
-def _adapter(lib: str, env_id: str = DEFAULT_ENV_ID) -> Adapter:
-    """One adapter per library and level per process, so compiled resets are reused."""
+def _adapter(lib: str, env_id: str = DEFAULT_ENV_ID, constraint: str | None = None) -> Adapter:
+    """One adapter per library and level per process, so compiled resets are reused;
+    ``constraint`` is the constrained variant's sentence (default :data:`DEFAULT_CONSTRAINT`)."""
+    if lib == CONSTRAINED_LIB:
+        return _ADAPTERS[lib](env_id, constraint or DEFAULT_CONSTRAINT)
     return _ADAPTERS[lib](env_id)
 
 
 @functools.cache
-def _jit_vreset(lib: str, env_id: str = DEFAULT_ENV_ID) -> Callable:
-    return jax.jit(jax.vmap(_adapter(lib, env_id).reset))
+def _jit_vreset(lib: str, env_id: str = DEFAULT_ENV_ID, constraint: str | None = None) -> Callable:
+    return jax.jit(jax.vmap(_adapter(lib, env_id, constraint).reset))
 
 
-def batched_reset(lib: str, key: jax.Array, num_envs: int, env_id: str = DEFAULT_ENV_ID) -> Any:
+def batched_reset(
+    lib: str,
+    key: jax.Array,
+    num_envs: int,
+    env_id: str = DEFAULT_ENV_ID,
+    constraint: str | None = None,
+) -> Any:
     """``vmap(reset)`` over ``num_envs`` keys, in fixed chunks of RESET_CHUNK envs.
 
     A fixed chunk shape compiles the reset once per library instead of once per N (the
     reset compile is several seconds on 2 cores and is not what is being measured).
     """
-    vreset = _jit_vreset(lib, env_id)
+    vreset = _jit_vreset(lib, env_id, constraint)
     chunks = -(-num_envs // RESET_CHUNK)
     keys = jax.random.split(key, chunks * RESET_CHUNK)
     parts = [vreset(keys[i * RESET_CHUNK : (i + 1) * RESET_CHUNK]) for i in range(chunks)]
@@ -263,13 +291,19 @@ def batched_reset(lib: str, key: jax.Array, num_envs: int, env_id: str = DEFAULT
 
 
 def _measure_jax(
-    lib: str, num_envs: int, steps: int, repeats: int, seed: int, env_id: str = DEFAULT_ENV_ID
+    lib: str,
+    num_envs: int,
+    steps: int,
+    repeats: int,
+    seed: int,
+    env_id: str = DEFAULT_ENV_ID,
+    constraint: str | None = None,
 ) -> dict:
-    adapter = _adapter(lib, env_id)
+    adapter = _adapter(lib, env_id, constraint)
     key_reset, key_act = jax.random.split(jax.random.PRNGKey(seed))
     # Reset is not part of the measurement: done once, outside the timed region.
     t0 = time.perf_counter()
-    env_state = jax.block_until_ready(batched_reset(lib, key_reset, num_envs, env_id))
+    env_state = jax.block_until_ready(batched_reset(lib, key_reset, num_envs, env_id, constraint))
     reset_s = time.perf_counter() - t0
 
     timing = measure_compiled(
@@ -349,9 +383,11 @@ def measure(
     repeats: int = 3,
     seed: int = 0,
     env_id: str = DEFAULT_ENV_ID,
+    constraint: str | None = None,
 ) -> dict:
     """Measure one library at one batch size on ``env_id`` (a MiniGrid id; each library's
-    own name for it); returns a JSON-serialisable result dict.
+    own name for it); returns a JSON-serialisable result dict. ``constraint`` is
+    ``jaxgrid-constrained``'s sentence (default :data:`DEFAULT_CONSTRAINT`).
 
     ``steps`` is T, the scan length (for ``minigrid``: the Python loop length per repeat).
     Keys include ``steps_per_s`` (best of ``repeats``), ``steps_per_s_median``,
@@ -361,7 +397,7 @@ def measure(
         return _measure_minigrid(num_envs, steps, repeats, seed, env_id)
     if lib not in _ADAPTERS:
         raise ValueError(f"unknown lib {lib!r}; choose from {ALL_LIBS}")
-    return _measure_jax(lib, num_envs, steps, repeats, seed, env_id)
+    return _measure_jax(lib, num_envs, steps, repeats, seed, env_id, constraint)
 
 
 def default_steps(num_envs: int) -> int:
@@ -373,6 +409,7 @@ def default_steps(num_envs: int) -> int:
 _IMPORT_NAMES = {
     "jaxgrid": "jaxgrid",
     "jaxgrid-masked": "jaxgrid",
+    CONSTRAINED_LIB: "jaxgrid",
     "navix": "navix",
     "xminigrid": "xminigrid",
     "minigrid": "minigrid",
@@ -448,12 +485,25 @@ def ratios(results: list[dict], num_envs: list[int]) -> dict[int, dict]:
     return out
 
 
+def constrained_ratios(results: list[dict], num_envs: list[int]) -> dict[int, float]:
+    """Step time of the constrained level over the unconstrained one's, per batch size
+    (unconstrained steps/s over constrained steps/s, both best of repeats, same run)."""
+    best = {(r["lib"], r["num_envs"]): r["steps_per_s"] for r in results}
+    return {
+        n: best[("jaxgrid", n)] / best[(CONSTRAINED_LIB, n)]
+        for n in num_envs
+        if ("jaxgrid", n) in best and (CONSTRAINED_LIB, n) in best
+    }
+
+
 def format_table(
     results: list[dict], skipped: dict[str, str], num_envs: list[int], libs: list[str]
 ) -> str:
     """Readable table: rows = lib, columns = num envs (steps/s best-of, compile s)."""
     by = {(r["lib"], r["num_envs"]): r for r in results}
-    head = f"{'lib':<10}" + "".join(f"{f'N={n} steps/s':>18}{'compile s':>11}" for n in num_envs)
+    width = max(10, *(len(lib) + 1 for lib in libs))
+    columns = "".join(f"{f'N={n} steps/s':>18}{'compile s':>11}" for n in num_envs)
+    head = f"{'lib':<{width}}" + columns
     lines = [
         "env steps/s (best of repeats) on MiniGrid-DoorKey-8x8, random actions, auto-reset",
         head,
@@ -461,15 +511,22 @@ def format_table(
     ]
     for lib in libs:
         if lib in skipped:
-            lines.append(f"{lib:<10}  skipped: {skipped[lib]}")
+            lines.append(f"{lib:<{width}}  skipped: {skipped[lib]}")
             continue
-        row = f"{lib:<10}"
+        row = f"{lib:<{width}}"
         for n in num_envs:
             r = by.get((lib, n))
             rate = _fmt_rate(r["steps_per_s"]) if r else "-"
             comp = f"{r['compile_s']:.2f}" if r and r["compile_s"] is not None else "-"
             row += f"{rate:>18}{comp:>11}"
         lines.append(row)
+    slower = constrained_ratios(results, num_envs)
+    if slower:
+        lines.append("")
+        lines.append(
+            "constrained step time / unconstrained: "
+            + ", ".join(f"N={n}: {v:.2f}x" for n, v in slower.items())
+        )
     rat = ratios(results, num_envs)
     if rat:
         lines.append("")
@@ -488,8 +545,10 @@ def run(
     python_steps: int,
     seed: int = 0,
     log: Callable[[str], None] = print,
+    constraint: str = DEFAULT_CONSTRAINT,
 ) -> dict:
-    """Run every (lib, N) measurement in one process and collect one report dict."""
+    """Run every (lib, N) measurement in one process and collect one report dict
+    (``constraint``: the sentence of ``jaxgrid-constrained``)."""
     skipped: dict[str, str] = {}
     results: list[dict] = []
     for lib in libs:
@@ -504,7 +563,7 @@ def run(
             t = python_steps if lib == "minigrid" else (steps or default_steps(n))
             log(f"[run] {lib:<9} N={n:<5} T={t:<6} ...")
             try:
-                r = measure(lib, n, t, repeats, seed)
+                r = measure(lib, n, t, repeats, seed, constraint=constraint)
             except Exception as exc:  # report and go on; one broken peer must not hide others
                 skipped.setdefault(lib, f"failed at N={n}: {type(exc).__name__}: {exc}")
                 log(f"[fail] {lib} N={n}: {type(exc).__name__}: {exc}")
@@ -536,12 +595,16 @@ def run(
             "python_steps": python_steps,
             "repeats": repeats,
             "seed": seed,
+            "constraint": constraint,
         },
         "machine": machine_info(),
         "versions": library_versions(),
         "results": results,
         "skipped": skipped,
         "ratios_jaxgrid_vs_best_peer": {str(n): v for n, v in ratios(results, num_envs).items()},
+        "constrained_step_time_ratio": {
+            str(n): v for n, v in constrained_ratios(results, num_envs).items()
+        },
     }
 
 
@@ -570,8 +633,14 @@ def _parser() -> argparse.ArgumentParser:
         "--libs",
         nargs="+",
         default=list(ALL_LIBS),
-        choices=ALL_LIBS,
-        help="libraries to measure; a peer that does not import is skipped",
+        choices=(*ALL_LIBS, CONSTRAINED_LIB),
+        help="libraries to measure; a peer that does not import is skipped; "
+        f"{CONSTRAINED_LIB}: jaxgrid's level with --constraint",
+    )
+    p.add_argument(
+        "--constraint",
+        default=DEFAULT_CONSTRAINT,
+        help=f"the sentence of {CONSTRAINED_LIB} (a constraint DoorKey-8x8 can hold)",
     )
     p.add_argument(
         "--python-steps",
@@ -596,6 +665,13 @@ def main(argv: list[str] | None = None) -> dict:
         p.error(f"--num-envs must all be >= 1, got {args.num_envs}")
     if args.seed < 0:  # MiniGrid's reset refuses it
         p.error(f"--seed must be >= 0, got {args.seed}")
+    if CONSTRAINED_LIB in args.libs:  # a sentence DoorKey cannot hold: say so before compiling
+        import jaxgrid
+
+        try:
+            jaxgrid.make(DEFAULT_ENV_ID, constraint=args.constraint)
+        except ValueError as exc:
+            p.error(f"--constraint: {exc}")
     missing = {lib: check_import(lib) for lib in args.libs}
     if all(missing.values()):  # nothing left to measure: say so now, not after the run
         raise ImportError(
@@ -612,6 +688,7 @@ def main(argv: list[str] | None = None) -> dict:
         args.python_steps,
         args.seed,
         log=lambda s: print(s, file=sys.stderr, flush=True),
+        constraint=args.constraint,
     )
     print(format_table(report["results"], report["skipped"], args.num_envs, args.libs))
     print()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +13,7 @@ from flax import struct
 
 from jaxgrid import mission as mission_words
 from jaxgrid.constants import EMPTY_CELL, NUM_ACTIONS
+from jaxgrid.contents import NOTHING, Contents
 from jaxgrid.dynamics import transition
 from jaxgrid.observation import egocentric_view
 from jaxgrid.types import State, TimeStep
@@ -27,10 +29,12 @@ class Environment(struct.PyTreeNode):
     need more room than a 1x1 grid says so in :meth:`min_size`, which construction enforces.
     An overriding ``step`` should call :func:`check_action` first, as :meth:`step` does.
     A level states MiniGrid's mission in :attr:`MISSION`, or in :meth:`mission` when the
-    mission names the episode's task.
+    mission names the episode's task, and what its episodes can hold in :meth:`contents`.
     """
 
     MISSION = "get to the green goal square"  # MiniGridEnv's most common mission
+    #: What every episode of the level can hold (:meth:`contents`, when no setting changes it).
+    CONTENTS: ClassVar[Contents] = NOTHING
 
     width: int = struct.field(pytree_node=False)
     height: int = struct.field(pytree_node=False)
@@ -54,6 +58,13 @@ class Environment(struct.PyTreeNode):
         returned state's ``key`` with an independent one, which saves a split per reset.
         """
         raise NotImplementedError
+
+    def contents(self) -> Contents:
+        """What this level's episodes can hold in the kinds a constraint names (a
+        :class:`~jaxgrid.contents.Contents`), at reset or later: a constraint may name only
+        these. The default, :attr:`CONTENTS` (nothing, unless the level declares it), leaves
+        a level unconstrainable until it declares."""
+        return self.CONTENTS
 
     # --- public API -----------------------------------------------------------------------
     @property

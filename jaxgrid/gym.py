@@ -13,6 +13,11 @@ with :func:`jaxgrid.register`)::
 
     envs = gym.make_vec("jaxgrid/TwoRooms-v0", num_envs=64, vectorization_mode="vector_entry_point")
 
+Keyword arguments go to :func:`jaxgrid.make`, a constraint included, single and vector alike:
+``gym.make("jaxgrid/MiniGrid-LavaCrossingS9N1-v0", constraint="do not step on lava more than
+twice", lava="cost")`` observes ``constraint`` and reports ``cost`` and ``violation`` in
+``info``.
+
 :class:`JaxGridEnv` wraps one environment behind a jitted ``step``; :class:`JaxGridVectorEnv`
 steps the whole batch in one jitted call of :class:`jaxgrid.wrappers.BatchedAutoReset`, with
 gymnasium's ``AutoresetMode.SAME_STEP`` semantics. Both return numpy arrays.
@@ -46,7 +51,7 @@ def observation_space(env) -> spaces.Dict:
     """The gymnasium space of one observation of a jaxgrid environment.
 
     ``image``: Box uint8 ``(V, V, 3)`` in ``[0, 255]`` (MiniGrid's encoding, indexed ``[x, y]``),
-    ``direction``: Discrete(4), and for scenarios ``constraint``: Box int32 ``(MAX_LEN,)`` of
+    ``direction``: Discrete(4), and for constrained envs ``constraint``: Box int32 ``(MAX_LEN,)`` of
     token ids in ``[0, vocab_size)`` of the env's sentence table
     (:func:`jaxgrid.constrained.language_table`).
     """
@@ -135,7 +140,8 @@ class JaxGridEnv(gymnasium.Env):
     Observations are dicts of numpy values (see :func:`observation_space`); actions are
     Discrete(7) (MiniGrid's). ``reset(seed=s)`` is deterministic in ``s``; ``reset()`` draws the
     episode's JAX key from the env's ``np_random``. ``info`` holds the environment's info as
-    numpy values (scenarios: ``violation``, ``cost``, ``constraint_type``, ``template_id``).
+    numpy values (constrained envs: ``violation``, ``cost``, ``constraint_type``,
+    ``template_id``).
     The environment truncates itself at ``max_steps``, so no ``TimeLimit`` is added.
     """
 

@@ -19,20 +19,23 @@ Observations (``observation=`` of :func:`make`):
 * ``"flat"`` (default): one float32 vector in ``[0, 1]``, ``spaces.Box``. The ``(V, V, 3)``
   image, cell by cell in its ``[x, y]`` order, one-hot per channel exactly as MiniGrid's
   ``OneHotPartialObsWrapper`` (object type 11, colour 6, state 3: 20 features a cell), then the
-  direction one-hot (4), then, for the constrained scenarios, each constraint token one-hot
+  direction one-hot (4), then, for constrained envs, each constraint token one-hot
   over the env's vocabulary, padding (id 0) included. An MLP reads it as is; no information is
   dropped. Sizes: ``V * V * 20 + 4`` (984 for a 7x7 view), ``+ 13 * 23`` for TwoRooms-v0,
-  TwoRoomsLava-v0 and ThreeRoomsKey-v0 (5x5 view: 803), ``+ 32 * 73`` for HazardRooms-v0.
+  TwoRoomsLava-v0 and ThreeRoomsKey-v0 (5x5 view: 803), ``+ 32 * 73`` for HazardRooms-v0 and
+  a level made with a constraint (``make(id, constraint=...)``; its keywords go to
+  :func:`jaxgrid.make`).
 * ``"dict"``: jaxgrid's own observation as an :class:`Observation` (a dict that also reads
   its keys as attributes, as ``spaces.Dict.contains`` does): ``image`` uint8 ``(V, V, 3)``,
-  ``direction`` int32, and for scenarios ``constraint`` int32 token ids; ``spaces.Dict``.
+  ``direction`` int32, and for constrained envs ``constraint`` int32 token ids;
+  ``spaces.Dict``.
 
 ``info`` of :meth:`GymnaxEnv.step_env`: ``cost`` (float32) and ``violation`` (bool) for
 every id, as jaxgrid's own info has them (always 0.0 / False on unconstrained ids): in the
 paper's scenarios ``cost`` is 1.0 on a step with a violation; in HazardRooms it is 1.0 on any
 costly event, within the constraint's budget or not (the safe-RL convention, a budget being a
-cost limit). The env's other info passes through (scenarios: ``constraint_type``,
-``template_id``; HazardRooms ``satisfiable``).
+cost limit), as on a constrained level. The env's other info passes through (constrained
+envs: ``constraint_type``, ``template_id``; HazardRooms ``satisfiable``).
 
 The gymnax contract, chosen at import from the installed gymnax: where its ``step`` asks
 ``is_truncated`` (gymnax 1.0.1), ``step_env`` returns ``terminated`` alone and ``step`` returns

@@ -32,10 +32,12 @@ state; ``info`` reports ``violation``, ``cost``, ``constraint_type`` (index into
 ``satisfiable``.
 
 ``sentences`` replaces the drawn constraints with a fixed list (each episode draws one of
-them uniformly); every sentence is parsed and checked against what the scenario contains
-when the environment is built, and refused when fewer than :data:`MIN_SATISFIABLE_SHARE` of
-:data:`CHECK_LAYOUTS` sampled layouts can be crossed without entering its zones
-(:func:`satisfiable_share`): the retry loop would often end on an impossible layout.
+them, uniformly or by ``weights``; ``jaxgrid.make("HazardRooms-v0", constraint=...)`` sets
+them); every sentence is parsed and checked against what the scenario contains
+(:attr:`HazardRooms.CONTENTS`) when the environment is built, and refused when fewer than
+:data:`MIN_SATISFIABLE_SHARE` of :data:`CHECK_LAYOUTS` sampled layouts can be crossed without
+entering its zones (:func:`satisfiable_share`): the retry loop would often end on an
+impossible layout.
 """
 
 from __future__ import annotations
@@ -66,8 +68,17 @@ from jaxgrid.constants import (
     WALL_CELL,
     YELLOW,
 )
-from jaxgrid.constrained import ConstrainedEnvironment, ConstrainedExtras, EpisodeConstraint
-from jaxgrid.dynamics import get_cell, transition
+from jaxgrid.constrained import (
+    ConstrainedEnvironment,
+    ConstrainedExtras,
+    EpisodeConstraint,
+    check_lava,
+    check_weights,
+    draw_row,
+    harmless_lava,
+)
+from jaxgrid.contents import ALL_COLOURS, Contents
+from jaxgrid.dynamics import transition
 from jaxgrid.environment import check_action
 from jaxgrid.oracle import distance_field, passable_cells
 from jaxgrid.paraphrases import SPLITS
@@ -107,28 +118,12 @@ _DOOR_ROOMS = ((0, 1), (2, 3), (0, 2), (1, 3))
 def check_sentence(sentence: str) -> language.Constraint:
     """Parse ``sentence`` and check that HazardRooms has what it names.
 
-    Raises ``ValueError`` naming the word for a target or trigger the scenario lacks: a ball
-    or box, a floor colour other than blue, green and yellow, a green door.
+    Raises ``ValueError`` naming the word for a target or trigger the scenario lacks
+    (:attr:`HazardRooms.CONTENTS`): a ball or box, a floor colour other than blue, green and
+    yellow, a green door.
     """
     c = language.parse(sentence)
-    known = set(HAZARD_ROOMS_TARGETS)
-    for clause in c.clauses:
-        things = [clause.target]
-        if clause.trigger is not None:
-            things.append(clause.trigger.target if clause.trigger.action == "enter" else None)
-            if clause.trigger.action == "pickup" and clause.trigger.kind != "key":
-                raise ValueError(
-                    f"{sentence!r}: HazardRooms has no {clause.trigger.kind!r} to pick up "
-                    "(only a key)"
-                )
-        for t in things:
-            if t is not None and t not in known:
-                floors = ", ".join(HAZARD_ROOMS_FLOORS)
-                doors = ", ".join(x.colour for x in HAZARD_ROOMS_TARGETS if x.kind == "door")
-                raise ValueError(
-                    f"{sentence!r}: HazardRooms has no {t.colour!r} {t.kind} "
-                    f"(floors: {floors}; doors: {doors})"
-                )
+    HazardRooms.CONTENTS.check(c, "HazardRooms")
     return c
 
 
@@ -208,14 +203,16 @@ class HazardRooms(ConstrainedEnvironment):
     """Four rooms, doors, a key, costly lava and floor strips, a rich constraint per episode.
 
     Static settings: ``split`` (table rows drawn from, as the paper's scenarios), ``budgets``
-    (the counts budget clauses use), ``distances`` (those proximity clauses use) and
-    ``sentences`` (a fixed list of constraints instead of the drawn ones).
+    (the counts budget clauses use), ``distances`` (those proximity clauses use),
+    ``sentences`` (a fixed list of constraints instead of the drawn ones) and ``weights``
+    (how often each of them is drawn; None: uniformly).
     """
 
     split: str = struct.field(pytree_node=False, default="train")
     budgets: tuple = struct.field(pytree_node=False, default=(1, 2))
     distances: tuple = struct.field(pytree_node=False, default=(2, 3))
     sentences: tuple | None = struct.field(pytree_node=False, default=None)
+    weights: tuple | None = struct.field(pytree_node=False, default=None)
 
     language_table = HAZARD_ROOMS
     INFO_KEYS = ConstrainedEnvironment.INFO_KEYS + ("satisfiable",)
@@ -240,8 +237,26 @@ class HazardRooms(ConstrainedEnvironment):
             if isinstance(self.sentences, str) or not self.sentences:
                 raise ValueError(f"{name}.sentences must be a non-empty tuple of sentences")
             self.constraint_table()  # parses and checks every sentence now
+            if self.weights is not None:
+                check_weights(self.weights, len(self.sentences))
+        elif self.weights is not None:
+            raise ValueError(f"{name}.weights needs sentences: they weigh the given sentences")
             for sentence in dict.fromkeys(self.sentences):
                 _check_satisfiable(self, sentence)
+
+    #: Its doors (the five non-green colours), lava, water, grass and yellow floor, a key.
+    CONTENTS = Contents(
+        door=[t.colour for t in HAZARD_ROOMS_TARGETS if t.kind == "door"],
+        lava=True, floor=HAZARD_ROOMS_FLOORS, key=ALL_COLOURS,
+    )  # fmt: skip
+
+    def with_sentences(self, sentences, weights, lava):
+        """HazardRooms drawing from ``sentences`` (its lava always costs: ``lava`` must be None
+        or ``"cost"``)."""
+        if lava not in (None, "cost"):
+            check_lava(lava)
+            raise ValueError(f"HazardRooms' lava always costs; lava={lava!r} is not available")
+        return self.replace(sentences=tuple(sentences), weights=weights)
 
     def min_size(self):
         # Every room interior at least 3x3: room for a strip and a cell beside each door.
@@ -356,7 +371,10 @@ class HazardRooms(ConstrainedEnvironment):
         u = jax.random.uniform(key, (6,))
         spec = table["spec"]
         if self.sentences is not None:
-            row = _pick(u[0], jnp.ones(table["type_id"].shape, bool))
+            if self.weights is None:
+                row = _pick(u[0], jnp.ones(table["type_id"].shape, bool))
+            else:
+                row = draw_row(u[0], jnp.cumsum(jnp.asarray(self.weights, jnp.float32)))
             ec = EpisodeConstraint(
                 table["tokens"][row], table["type_id"][row], table["template_id"][row]
             )
@@ -455,7 +473,7 @@ class HazardRooms(ConstrainedEnvironment):
         """MiniGrid step with harmless lava, and the monitor's cost and violation."""
         check_action(action)
         new, reward, terminated, truncated = transition(state, action, self.max_steps)
-        terminated = terminated & (get_cell(new.grid, new.agent_pos)[0] == GOAL)  # lava: no end
+        terminated = harmless_lava(state, new, terminated)
         new, cost, violation = self.judge(state, new)
         info = self.step_info(new, violation, cost)
         return new, self.make_timestep(new, reward, terminated, truncated, info)

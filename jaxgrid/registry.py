@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
+from jaxgrid.constrained import check_lava, constrain
 from jaxgrid.environment import Environment
 from jaxgrid.hazard import HazardRooms
 from jaxgrid.levels import (
@@ -105,12 +106,31 @@ def registered_ids() -> list[str]:
     return sorted(_table())
 
 
-def make(env_id: str, **overrides) -> Environment:
+def make(
+    env_id: str, *, constraint=None, constraints=None, weights=None, lava=None, **overrides
+) -> Environment:
     """Build the environment registered as ``env_id``.
 
     ``overrides`` replace configuration fields, e.g. ``make("MiniGrid-DoorKey-8x8-v0",
     view_size=5, max_steps=100)``. An unknown id or field raises ``ValueError``.
+
+    A constraint makes the level a constrained environment
+    (:func:`jaxgrid.constrained.constrain`): ``constraint`` is one sentence, ``constraints``
+    several drawn one per episode (by ``weights``, uniformly by default) or a sentence table
+    (:data:`jaxgrid.sentences.LEVELS`: its rows naming only what the level holds), and
+    ``lava`` is ``"lethal"`` (MiniGrid's, the default) or ``"cost"`` (lava costs what the
+    constraint says and ends no episode). Without a constraint the level is unchanged; a bad
+    value, or a sentence naming what the level never holds, raises ``ValueError`` naming it
+    before anything compiles.
     """
+    if lava is not None:
+        check_lava(lava)
+    if constraint is None and constraints is None:
+        for option, value in (("weights", weights), ("lava", lava)):
+            if value is not None and (option, value) != ("lava", "lethal"):
+                raise ValueError(
+                    f"{option}={value!r} needs a constraint (constraint= or constraints=)"
+                )
     table = _table()
     if env_id not in table:
         raise ValueError(
@@ -125,4 +145,9 @@ def make(env_id: str, **overrides) -> Environment:
                 f"{env_id} has no setting {unknown[0]!r}; settings: {', '.join(sorted(fields))}"
             )
         env = env.replace(**overrides)
-    return env
+    if constraint is None and constraints is None:
+        return env
+    return constrain(
+        env, constraint=constraint, constraints=constraints, weights=weights, lava=lava,
+        name=env_id,
+    )  # fmt: skip

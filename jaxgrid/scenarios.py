@@ -44,6 +44,7 @@ from jaxgrid.constants import (
     WALL_CELL,
 )
 from jaxgrid.constrained import ConstrainedEnvironment, ConstrainedExtras, DoorConstraint
+from jaxgrid.contents import Contents
 from jaxgrid.dynamics import get_cell, transition
 from jaxgrid.environment import check_action
 from jaxgrid.paraphrases import SPLITS
@@ -194,6 +195,9 @@ class TwoRooms(Scenario):
             return 7, 4, "two rooms at least two columns wide (lava) and two door rows"
         return 5, 4, "two rooms at least one column wide and two door rows"
 
+    def contents(self) -> Contents:
+        return Contents(door=sentences.DOOR_COLOURS, lava=self.has_lava)
+
     def layout(self, u):
         w, h = self.width, self.height
         xs, ys = G.coords(w, h)
@@ -235,6 +239,8 @@ class ThreeRoomsKey(Scenario):
         # Walls at width // 3 and 2 * width // 3 leave every room a column from width 7; the
         # wall-2 door's row (1 .. height - 3) must differ from the gap's (height - 2).
         return 7, 4, "three rooms at least one column wide, a door row above the gap row"
+
+    CONTENTS = Contents(door=sentences.DOOR_COLOURS, key=sentences.DOOR_COLOURS)
 
     def layout(self, u):
         w, h = self.width, self.height

@@ -12,7 +12,11 @@ trained on a table keeps its parameters however the language grows). Two tables 
 * :data:`HAZARD_ROOMS`: every single-clause sentence HazardRooms draws from, paraphrase
   templates of the four clause types over its targets and triggers; ``max_len`` and
   ``vocab_size`` are the whole language's (32 and 73), since HazardRooms joins two rows with
-  "and" and accepts any given sentence.
+  "and" and accepts any given sentence;
+* :data:`LEVELS`: every single-clause sentence of those templates over every target and
+  trigger the grammar has, the whole language's token layout: a constrained MiniGrid level
+  draws from its rows that name only what the level can hold, and observes given sentences
+  in its layout.
 
 The paper's table
 -----------------
@@ -61,6 +65,9 @@ __all__ = [
     "HAZARD_ROOMS_TRIGGERS",
     "HELDOUT_DOOR_PHRASES",
     "LAVA_CLAUSES",
+    "LEVELS",
+    "LEVEL_TARGETS",
+    "LEVEL_TRIGGERS",
     "NUM_TEMPLATES",
     "PAPER",
     "TEMPLATES",
@@ -98,6 +105,14 @@ class SentenceTable:
     max_len: int
     vocab_size: int
     rows: tuple[SentenceRow, ...]
+
+    def __hash__(self) -> int:
+        # Tables are static settings of environments, hashed on every jitted call: once.
+        return self._hash
+
+    @functools.cached_property
+    def _hash(self) -> int:
+        return hash((self.name, self.max_len, self.vocab_size, self.rows))
 
     def __post_init__(self):
         if not 1 <= self.max_len <= language.MAX_LEN:
@@ -370,6 +385,39 @@ HAZARD_ROOMS = SentenceTable(
                     r.heldout)
         for r in hazard_rooms_rows(
             "all", range(1, language.MAX_BUDGET + 1), range(1, language.MAX_DISTANCE + 1)
+        )
+    ),
+)  # fmt: skip
+
+
+# --------------------------------------------------------------------------------------
+# The levels' table
+# --------------------------------------------------------------------------------------
+
+#: Every target of the grammar: lava, then the floor and the door of each colour.
+LEVEL_TARGETS: tuple[Target, ...] = (
+    Target("lava"),
+    *(Target("floor", c) for c in COLOURS),
+    *(Target("door", c) for c in COLOURS),
+)
+#: The levels' triggers: picking up a key, a ball or a box, or entering any target.
+LEVEL_TRIGGERS: tuple[Trigger, ...] = tuple(
+    Trigger("pickup", kind=k) for k in ("key", "ball", "box")
+) + tuple(Trigger("enter", target=t) for t in LEVEL_TARGETS)
+
+#: The levels' table: :func:`clause_rows` over :data:`LEVEL_TARGETS` and
+#: :data:`LEVEL_TRIGGERS` for every budget and distance the language allows (held-out phrases
+#: as :mod:`jaxgrid.paraphrases` says); the whole language's token layout.
+LEVELS = SentenceTable(
+    name="levels",
+    max_len=language.MAX_LEN,
+    vocab_size=language.vocab_size(),
+    rows=tuple(
+        SentenceRow(r.sentence, r.template_id, language.CONSTRAINT_TYPES.index(r.clause.type),
+                    r.heldout)
+        for r in clause_rows(
+            LEVEL_TARGETS, LEVEL_TRIGGERS, range(1, language.MAX_BUDGET + 1),
+            range(1, language.MAX_DISTANCE + 1),
         )
     ),
 )  # fmt: skip

@@ -13,6 +13,7 @@ from flax import struct
 
 from jaxgrid import grid as G
 from jaxgrid.constants import DOOR, GOAL_CELL, KEY, LAVA_CELL, LOCKED, WALL_CELL, YELLOW
+from jaxgrid.contents import Contents
 from jaxgrid.environment import Environment
 from jaxgrid.types import State
 
@@ -55,6 +56,8 @@ class DoorKey(Environment):
 
     MISSION = "use the key to open the door and then get to the goal"
 
+    CONTENTS = Contents(door={"yellow"}, key={"yellow"})
+
     def min_size(self):
         # Wall, the agent's column, the door's wall, the goal's column, wall; the agent's
         # column holds agent and key, and the door's row is drawn from 1 .. height - 3.
@@ -84,6 +87,8 @@ class LavaGap(Environment):
     """``LavaGapEnv``: a vertical lava strip with a one-cell gap; agent at (1, 1) facing right."""
 
     MISSION = "avoid the lava and get to the green goal square"
+
+    CONTENTS = Contents(lava=True)
 
     def min_size(self):
         # The strip's column is drawn from 2 .. width - 3: between the agent and the goal.

@@ -37,6 +37,7 @@ from flax import struct
 
 from jaxgrid import grid as G
 from jaxgrid.constants import BALL, BLUE, EMPTY, EMPTY_CELL, FORWARD, GOAL, GOAL_CELL, LEFT
+from jaxgrid.contents import Contents
 from jaxgrid.dynamics import front_pos, get_cell, transition
 from jaxgrid.environment import Environment, check_action
 from jaxgrid.types import State, TimeStep
@@ -96,6 +97,9 @@ class DynamicObstacles(Environment):
     @property
     def num_actions(self) -> int:
         return NUM_ACTIONS
+
+    def contents(self) -> Contents:
+        return Contents(ball={"blue"} if self.n_obstacles else ())
 
     def generate(self, key: jax.Array) -> State:
         w, h = self.width, self.height

@@ -9,6 +9,7 @@ from flax import struct
 
 from jaxgrid import mission as mission_words
 from jaxgrid.constants import DOOR, EMPTY, FLOOR, GOAL, LAVA, OBJECT_NAMES, OPEN
+from jaxgrid.contents import Contents
 from jaxgrid.environment import Environment
 from jaxgrid.types import State
 
@@ -60,6 +61,10 @@ class FixedLevel(Environment):
 
     def mission_text(self, state: State) -> str:
         return self.MISSION if self.mission_string is None else self.mission_string
+
+    def contents(self) -> Contents:
+        """What the fixed grid and the carried object hold."""
+        return Contents.of_grid(np.concatenate([self.grid.reshape(-1, 3), [self.carrying]]))
 
     @property
     def grid(self) -> np.ndarray:

@@ -1,5 +1,8 @@
 """MiniGrid's key-and-locked-door levels, generated natively, with their own success rules.
 
+One thing, the RoomGrid key-and-door family of MiniGrid, each a faithful generator, hence
+its length.
+
 ``Unlock``, ``UnlockPickup``, ``BlockedUnlockPickup`` and ``KeyCorridor`` are built by
 MiniGrid's ``RoomGrid`` (a lattice of square rooms sharing walls). Each ``generate`` mirrors
 the level's ``_gen_grid`` and the ``RoomGrid`` helpers it calls; the comments quote the
@@ -41,6 +44,7 @@ from jaxgrid.constants import (
     WALL,
     WALL_CELL,
 )
+from jaxgrid.contents import ALL_COLOURS, Contents
 from jaxgrid.dynamics import get_cell, transition
 from jaxgrid.environment import Environment, check_action
 from jaxgrid.types import State, TimeStep
@@ -276,6 +280,7 @@ class Unlock(RoomLevel):
     """
 
     MISSION = "open the door"
+    CONTENTS = Contents(door=ALL_COLOURS, key=ALL_COLOURS)
 
     def mission(self, state: State) -> jax.Array:
         return mission_words.fill(self.MISSION)
@@ -307,6 +312,7 @@ class UnlockPickup(RoomLevel):
     """
 
     BLOCKED = False
+    CONTENTS = Contents(door=ALL_COLOURS, key=ALL_COLOURS, box=ALL_COLOURS)
 
     def succeeded(self, state: State, action: jax.Array) -> jax.Array:
         return self._picked_up_target(state, action)
@@ -338,6 +344,7 @@ class BlockedUnlockPickup(UnlockPickup):
     """
 
     BLOCKED = True
+    CONTENTS = Contents(door=ALL_COLOURS, key=ALL_COLOURS, box=ALL_COLOURS, ball=ALL_COLOURS)
 
 
 class KeyCorridor(RoomLevel):
@@ -359,6 +366,7 @@ class KeyCorridor(RoomLevel):
     num_rows: int = struct.field(pytree_node=False, default=3)
     num_cols: int = struct.field(pytree_node=False, default=3)
 
+    CONTENTS = Contents(door=ALL_COLOURS, key=ALL_COLOURS, ball=ALL_COLOURS)
     MIN_ROOM_SIZE = 3  # RoomGrid's minimum: each room keeps one interior cell
 
     def rows_cols(self) -> tuple[int, int]:

@@ -23,6 +23,7 @@ from flax import struct
 
 from jaxgrid import grid as G
 from jaxgrid.constants import BALL, EMPTY_CELL, GREEN, KEY, PICKUP, TOGGLE, WALL_CELL
+from jaxgrid.contents import Contents
 from jaxgrid.dynamics import transition
 from jaxgrid.environment import Environment, check_action
 from jaxgrid.types import State, TimeStep
@@ -64,6 +65,8 @@ class Memory(Environment):
 
     def min_size(self):
         return 7, 7, "a start room of three columns and the objects inside the outer walls"
+
+    CONTENTS = Contents(key={"green"}, ball={"green"})
 
     def layout(self, end: jax.Array) -> jax.Array:
         """The walls, uint8 ``(W, H, 3)``, for the hallway ending at column ``end``."""

@@ -52,6 +52,7 @@ from jaxgrid.constants import (
     TOGGLE,
     WALL_CELL,
 )
+from jaxgrid.contents import ALL_COLOURS, Contents
 from jaxgrid.dynamics import front_pos, transition
 from jaxgrid.environment import Environment, check_action
 from jaxgrid.levels.keys import Mission, mission
@@ -189,6 +190,8 @@ class GoToDoor(_GoTo):
     def min_size(self):
         return 5, 5, "GoToDoorEnv asserts size >= 5: doors at least two cells from each corner"
 
+    CONTENTS = Contents(door=ALL_COLOURS)
+
     def generate(self, key: jax.Array) -> State:
         w, h = self.width, self.height
         u = jax.random.uniform(key, (14,))
@@ -260,6 +263,10 @@ class _ObjectRoom(MissionLevel):
             side += 1
         why = f"{self.num_objs} objects" + (" apart from each other" if self.APART else "")
         return side, side, why + " and the agent inside the walls"
+
+    def contents(self) -> Contents:
+        names = {KEY: "key", BALL: "ball", BOX: "box"}
+        return Contents(**{names[t]: ALL_COLOURS for t in self.TYPES})
 
     def objects(self, u: jax.Array):
         """Draw the walls and objects (``u``: uniforms ``(num_objs, 2)``).

@@ -21,6 +21,7 @@ from flax import struct
 from jaxgrid import grid as G
 from jaxgrid import mission as mission_words
 from jaxgrid.constants import EMPTY, EMPTY_CELL, GOAL_CELL, LAVA_CELL, WALL_CELL
+from jaxgrid.contents import Contents
 from jaxgrid.environment import Environment
 from jaxgrid.types import State
 
@@ -57,13 +58,13 @@ def _interior(cell, width: int, height: int) -> bool:
     )
 
 
-
 def _require_odd(level, why: str) -> None:
     """``ValueError`` naming the field when the level's width or height is even."""
     for field in ("width", "height"):
         value = getattr(level, field)
         if value % 2 == 0:
             raise ValueError(f"{type(level).__name__}.{field} must be odd ({why}), got {value}")
+
 
 class FourRooms(Environment):
     """``FourRoomsEnv``: four rooms joined by one gap in each inner wall half; agent and goal
@@ -166,6 +167,9 @@ class Crossing(Environment):
         super().__post_init__()
         _require_odd(self, "rivers lie on the even rows and columns strictly inside the walls")
 
+    def contents(self) -> Contents:
+        return Contents(lava=self.obstacle == "lava" and self.num_crossings > 0)
+
     def mission(self, state: State) -> jax.Array:
         # _gen_mission_lava / _gen_mission_wall
         lead = "avoid the lava" if self.obstacle == "lava" else "find the opening"
@@ -264,6 +268,9 @@ class DistShift(Environment):
         # Rows 1 and strip2_row inside the walls, plus a third interior row to walk around them.
         height = max(self.strip2_row, 3) + 2
         return 4, height, "the goal apart from (1, 1), both lava rows and a lava-free row"
+
+    def contents(self) -> Contents:
+        return Contents(lava=self.width > 6)  # the strips span columns 3 .. width - 4
 
     def layout(self) -> np.ndarray:
         """The fixed grid, uint8 ``(W, H, 3)`` (the agent is not part of it)."""

@@ -40,6 +40,7 @@ from jaxgrid.constants import (
     PICKUP,
     TOGGLE,
 )
+from jaxgrid.contents import ALL_COLOURS, Contents
 from jaxgrid.dynamics import front_pos, get_cell, set_cell, transition
 from jaxgrid.levels.keys import (
     Mission,
@@ -88,6 +89,11 @@ class _ObstructedMaze(RoomLevel):
                 f"{name}.room_size must be {ROOM_SIZE} (MiniGrid's ObstructedMazeEnv fixes it), "
                 f"got {self.room_size!r}"
             )
+
+    def contents(self) -> Contents:
+        balls = {"blue", "green"} if self.blocked else {"blue"}  # the target, blocking balls
+        boxes = {"grey"} if self.key_in_box else ()
+        return Contents(door=ALL_COLOURS, key=ALL_COLOURS, ball=balls, box=boxes)
 
     def succeeded(self, state: State, action: jax.Array) -> jax.Array:
         return self._picked_up_target(state, action)

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 
 from jaxgrid import grid as G
 from jaxgrid.constants import BALL, BOX, CLOSED, DOOR, EMPTY_CELL, KEY, WALL_CELL
+from jaxgrid.contents import ALL_COLOURS, Contents
 from jaxgrid.environment import Environment
 from jaxgrid.types import State
 
@@ -41,6 +42,10 @@ class Playground(Environment):
 
     def min_size(self):
         return 10, 10, "three rooms of at least three cells along each side"
+
+    def contents(self) -> Contents:
+        every = ALL_COLOURS
+        return Contents(door=every, key=every, ball=every, box=every)
 
     def doors(self) -> list[tuple[bool, int, int, int]]:
         """Per wall with a door, in MiniGrid's order: ``(vertical, fixed, low, high)``, the

@@ -46,6 +46,7 @@ from jaxgrid.constants import (
     WALL,
     WALL_CELL,
 )
+from jaxgrid.contents import ALL_COLOURS, Contents
 from jaxgrid.dynamics import get_cell, transition
 from jaxgrid.environment import Environment, check_action
 from jaxgrid.types import State, TimeStep
@@ -126,6 +127,9 @@ class MultiRoom(Environment):
         # The first room's corner (0, 0) with sides 4: its right wall in the last column, its
         # bottom wall above the last row (topY + sizeY < height).
         return MIN_ROOM_SIZE, MIN_ROOM_SIZE + 1, "a first room of 4 x 4 cells above the last row"
+
+    def contents(self) -> Contents:
+        return Contents(door=ALL_COLOURS if self.max_num_rooms > 1 else ())
 
     def _propose(self, u, parent, older, rooms):
         """One room's :data:`TRIES` proposals; returns ``(kept, room, entry wall)``.
@@ -338,6 +342,8 @@ class LockedRoom(Environment):
     def min_size(self):
         return 9, 13, "three rooms of one interior column on each side, doors 3 below the top"
 
+    CONTENTS = Contents(door=ALL_COLOURS, key=ALL_COLOURS)
+
     def rooms(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(tops, sizes, doors)``, int32 ``(6, 2)`` each, in MiniGrid's ``self.rooms`` order
         (left then right, top to bottom)."""
@@ -448,6 +454,8 @@ class RedBlueDoors(Environment):
         # A room of one interior cell, and a free column between each door and the outer wall:
         # (width - height) // 2 >= 2 on the left, as many or one more on the right.
         return self.height + 4, 3, "the square room of side height and a free column each side"
+
+    CONTENTS = Contents(door={"red", "blue"})
 
     def generate(self, key: jax.Array) -> State:
         w, size = self.width, self.height

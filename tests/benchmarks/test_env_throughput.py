@@ -72,3 +72,22 @@ def test_cli_help_shows_every_default(capsys):
     for shown in ("(default: [1, 256, 4096])", "(default: 3)", "(default: 3000)",
                   "(default: 0)", "(default: None)"):  # fmt: skip
         assert shown in text
+
+
+def test_the_constrained_level_is_measured_against_the_unconstrained_one(tmp_path):
+    argv = ["--libs", "jaxgrid", bench.CONSTRAINED_LIB, "--num-envs", "2", "--steps", "8",
+            "--repeats", "2", "--json", str(tmp_path / "env.json")]  # fmt: skip
+    report = bench.main(argv)
+    ours, constrained = report["results"]
+    _check(constrained, bench.CONSTRAINED_LIB)
+    assert constrained["notes"]["constraint"] == bench.DEFAULT_CONSTRAINT
+    ratio = ours["steps_per_s"] / constrained["steps_per_s"]
+    assert report["constrained_step_time_ratio"] == {"2": ratio}
+    assert report["config"]["constraint"] == bench.DEFAULT_CONSTRAINT
+
+
+def test_cli_rejects_a_constraint_the_level_cannot_hold(capsys):
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--libs", bench.CONSTRAINED_LIB, "--constraint", "avoid lava"])
+    assert exc.value.code == 2
+    assert "never holds lava" in capsys.readouterr().err

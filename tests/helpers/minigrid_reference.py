@@ -13,6 +13,11 @@ MiniGrid in Python. So:
   converted episode (a ``FixedLevel`` carries its layout as a static field).
 * :func:`compare` checks every field up to MiniGrid's episode end and reports the first
   mismatching (seed, step, action, field).
+
+With ``constrained=`` (a function of the configuration giving a constrained level of the same
+configuration, ``jaxgrid.make(id, constraints=...)``), jaxgrid replays the converted states
+with a constraint drawn for each (:meth:`~jaxgrid.constrained.ConstrainedLevel.with_constraint`)
+through the constrained level's step: MiniGrid's rules must hold with a constraint on.
 """
 
 from __future__ import annotations
@@ -248,9 +253,11 @@ def differential_run(
     setup=None,
     action_seed: int = 0,
     encode_every_step: bool = False,
+    constrained=None,
 ) -> list[Episode]:
     """Reset ``mg`` with each seed (then ``setup(mg, seed)`` if given), convert it with
     ``from_minigrid``, record MiniGrid and replay jaxgrid over the same actions; compare.
+    ``constrained`` replays through a constrained level (see the module docstring).
 
     Returns the recorded episodes (for coverage statistics).
     """
@@ -270,9 +277,20 @@ def differential_run(
                 mg, acts, seed=seed, base_step=base_step, encode_every_step=encode_every_step
             )
         )
-    obs0, outs = jax_rollout(cfg, stack(states), jnp.asarray(actions))
+    env, states = cfg, stack(states)
+    if constrained is not None:
+        env, states = with_constraints(constrained(cfg), states, action_seed)
+    obs0, outs = jax_rollout(env, states, jnp.asarray(actions))
     compare(label or (mg.spec.id if mg.spec else type(mg).__name__), episodes, obs0, outs)
     return episodes
+
+
+def with_constraints(env, states, seed: int):
+    """``(env, states)``: the level's ``states`` (a batch) as ``env``'s, a constraint drawn for
+    each from keys of ``seed``; ``env`` a constrained level of their configuration."""
+    assert config_env(env) == config_env(env.level), "the constrained level's configuration"
+    keys = jax.random.split(jax.random.key(seed), jax.tree.leaves(states)[0].shape[0])
+    return env, jax.vmap(env.with_constraint)(states, keys)
 
 
 def set_minigrid_state(mg: MiniGridEnv, state) -> None:

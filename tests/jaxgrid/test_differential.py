@@ -19,6 +19,12 @@ own rules, which ``from_minigrid`` returns by default; ``test_key_levels.py``,
 Natively generated levels step like MiniGrid too: our resets, copied into MiniGrid, for a few
 levels in the default run and for every registered MiniGrid id with ``-m slow`` (the own-rule
 levels there under ``MiniGridEnv.step``'s rules).
+
+With a constraint on (a level made with ``constraints=jaxgrid.sentences.LEVELS``: each
+episode a row of the levels' table it can hold), every level that can hold one still steps
+like MiniGrid: the
+converted levels (the own-rule ones converted to their native level, under their own rules)
+and the native resets, a few levels in the default run and all of them with ``-m slow``.
 """
 
 from __future__ import annotations
@@ -35,7 +41,9 @@ from minigrid.core.world_object import Ball, Box, Key
 
 import jaxgrid
 from jaxgrid.compat import from_minigrid
+from jaxgrid.constrained import ConstrainedLevel
 from jaxgrid.environment import Environment
+from jaxgrid.sentences import LEVELS as LEVEL_TABLE
 
 SEEDS = 32  # per level in the default run
 SLOW_SEEDS = 200
@@ -115,9 +123,21 @@ SLOW_LEVELS = LEVELS + [
 ]
 
 
+def _constrained(env_id):
+    """A constrained level of ``env_id`` with a configuration's settings, for ``constrained=``."""
+    settings = ("max_steps", "view_size", "see_through_walls")
+    return lambda cfg: jaxgrid.make(
+        env_id, constraints=LEVEL_TABLE, **{k: getattr(cfg, k) for k in settings}
+    )
+
+
+def _holds_a_target(env_id) -> bool:
+    return jaxgrid.make(env_id).contents().constrainable
+
+
 def _run(env_id, kwargs, base_step, seeds, action_seed=0, **kw):
     mg = R.make_reference(env_id, **kwargs)
-    label = f"{env_id} {kwargs}"
+    label = f"{env_id} {kwargs}" + (" constrained" if kw.get("constrained") else "")
     return R.differential_run(
         mg,
         seeds,
@@ -163,6 +183,23 @@ def test_converted_levels_step_like_minigrid_many_seeds(env_id, kwargs, base_ste
         action_seed=1,
         encode_every_step=True,
     )
+
+
+# With a constraint on: the levels that can hold one (own-rule levels under their own rules).
+CONSTRAINED_DEFAULT = {"DoorKey-5x5", "LavaGapS7", "Playground", "RedBlueDoors-6x6"}
+CONSTRAINED_LEVELS = [lv for lv in SLOW_LEVELS if _holds_a_target(lv[1])]
+
+
+@pytest.mark.parametrize(
+    "env_id, kwargs",
+    [pytest.param(*lv[1:3], id=lv[0],
+                  marks=() if lv[0] in CONSTRAINED_DEFAULT else pytest.mark.slow)
+     for lv in CONSTRAINED_LEVELS],
+)  # fmt: skip
+def test_converted_levels_step_like_minigrid_with_a_constraint(env_id, kwargs):
+    seeds = range(2000, 2000 + SEEDS)
+    episodes = _run(env_id, kwargs, False, seeds, action_seed=2, constrained=_constrained(env_id))
+    assert len(episodes) == SEEDS
 
 
 def test_differential_run_exercises_the_dynamics():
@@ -222,24 +259,28 @@ NATIVE = [
 ]
 
 
-def _native(env_id, num, key_seed, **kw):
-    env = jaxgrid.make(env_id)
+def _native(env_id, num, key_seed, constrained=False, **kw):
+    env = jaxgrid.make(env_id, constraints=LEVEL_TABLE) if constrained else jaxgrid.make(env_id)
     mg = R.make_reference(env_id)
     cfg = R.config_env(env)
     mg.reset(seed=0)
     assert cfg == R.config_env(from_minigrid(mg)[0]), "defaults differ from MiniGrid's"
     reset = jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)
     states, ts = reset(jax.random.split(jax.random.PRNGKey(key_seed), num))
+    if constrained:  # MiniGrid holds the level's own state; jaxgrid steps the constrained one
+        rollout_env, level_states = env, ConstrainedLevel.level_state(states)
+    else:
+        rollout_env, level_states = cfg, states
     num_steps = min(env.max_steps, MAX_T)
     actions = R.draw_actions(key_seed, num, num_steps)
     episodes = []
     for b in range(num):
-        state = jax.tree.map(lambda x, b=b: x[b], states)
+        state = jax.tree.map(lambda x, b=b: x[b], level_states)
         mg.reset(seed=b)  # anything; then overwrite with our state
         R.set_minigrid_state(mg, state)
         episodes.append(R.record_episode(mg, actions[b], seed=b, **kw))
         np.testing.assert_array_equal(ts.observation["image"][b], episodes[-1].obs0)
-    obs0, outs = R.jax_rollout(cfg, states, jax.numpy.asarray(actions))
+    obs0, outs = R.jax_rollout(rollout_env, states, jax.numpy.asarray(actions))
     R.compare(f"native {env_id} key {key_seed}", episodes, obs0, outs)
 
 
@@ -260,6 +301,23 @@ def test_native_levels_step_like_minigrid_many_seeds(env_id):
             "one and faces out of the grid, where MiniGrid's Grid.get raises"
         )
     _native(env_id, SLOW_SEEDS, key_seed=7, encode_every_step=True, base_step=own_rule)
+
+
+# Native resets with a constraint on: plain-step levels that can hold one (own-rule levels
+# step under their own rules in the converted test above).
+CONSTRAINED_NATIVE = [
+    i for i in MINIGRID_IDS
+    if _holds_a_target(i) and type(jaxgrid.make(i)).step is Environment.step
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "env_id",
+    [pytest.param(i, marks=() if i == "MiniGrid-LavaGapS7-v0" else pytest.mark.slow)
+     for i in CONSTRAINED_NATIVE],
+)  # fmt: skip
+def test_native_levels_step_like_minigrid_with_a_constraint(env_id):
+    _native(env_id, SEEDS, key_seed=5, constrained=True, encode_every_step=True)
 
 
 @pytest.mark.parametrize("env_id", MINIGRID_IDS)

@@ -381,9 +381,9 @@ def test_budget_and_distance_ranges_are_checked_in_tables():
     [
         ("after you pick up the ball, avoid lava", "'ball'"),
         ("do not touch lava before you pick up the box", "'box'"),
-        ("avoid the purple floor", "'purple' floor"),
-        ("never stand next to the green door", "'green' door"),
-        ("once you pass the green door, avoid lava", "'green' door"),
+        ("avoid the purple floor", "purple floor .the word 'purple'"),
+        ("never stand next to the green door", "green door .the word 'green'"),
+        ("once you pass the green door, avoid lava", "green door .the word 'green'"),
     ],
 )
 def test_hazard_rooms_rejects_what_it_lacks(sentence, word):

@@ -76,6 +76,7 @@ from jaxgrid.grid import coords
 from jaxgrid.levels import Fetch, FixedLevel, GoToDoor, GoToObject, PutNear
 from jaxgrid.levels.keys import mission
 from jaxgrid.levels.missions import IDS, PutNearMission
+from jaxgrid.sentences import LEVELS
 
 N_MINIGRID = 2000  # MiniGrid resets per layout test; jaxgrid draws twice as many
 N_SLOW = 6000
@@ -530,8 +531,10 @@ def check_scripts(episodes, plans):
 # ------------------------------------------------------------------------------ steps
 
 
-def converted_run(env_id, seeds):
-    """Convert MiniGrid resets, play scripts then random actions in both, compare."""
+def converted_run(env_id, seeds, constrained=False):
+    """Convert MiniGrid resets, play scripts then random actions in both, compare; with
+    ``constrained``, jaxgrid steps the level with a constraint on (a row of the levels' table
+    for each episode) and must still step like MiniGrid."""
     mg = R.make_reference(env_id)
     states, episodes, plans, env = [], [], [], None
     for i, seed in enumerate(seeds):
@@ -550,7 +553,10 @@ def converted_run(env_id, seeds):
         states.append(state)
         episodes.append(play(mg, plan[0], seed))
     actions = jnp.asarray(np.stack([ep.actions for ep in episodes]))
-    obs0, outs = R.jax_rollout(env, R.stack(states), actions)
+    states = R.stack(states)
+    if constrained:
+        env, states = R.with_constraints(jaxgrid.make(env_id, constraints=LEVELS), states, 0)
+    obs0, outs = R.jax_rollout(env, states, actions)
     R.compare(f"{env_id} converted", episodes, obs0, outs)
     check_scripts(episodes, plans)
     return episodes
@@ -583,6 +589,15 @@ def native_run(env_id, num, key_seed):
 @pytest.mark.parametrize("env_id", [id_param(i, STEP_DEFAULT) for i in IDS])
 def test_converted_episodes_step_like_minigrid(env_id):
     episodes = converted_run(env_id, range(8))
+    wins, losses = outcomes(episodes)
+    assert wins >= 2 and losses >= 4, (wins, losses)
+
+
+@pytest.mark.parametrize(
+    "env_id", [id_param(i, STEP_DEFAULT) for i in IDS if jaxgrid.make(i).contents().constrainable]
+)
+def test_converted_episodes_step_like_minigrid_with_a_constraint(env_id):
+    episodes = converted_run(env_id, range(8), constrained=True)
     wins, losses = outcomes(episodes)
     assert wins >= 2 and losses >= 4, (wins, losses)
 

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers.monitor_reference import ReferenceMonitor, paper_rule_step
+from helpers.monitor_reference import ACTION_PROBS, compare, paper_rule_step
 
 import jaxgrid
 from jaxgrid import language as L
@@ -26,61 +26,12 @@ from jaxgrid.hazard import HazardRooms
 from jaxgrid.oracle import oracle_action
 from jaxgrid.wrappers import AutoReset
 
-# left, right, forward, pickup, drop, toggle: forward-heavy so agents travel and pass doors.
-ACTION_PROBS = np.array([0.12, 0.12, 0.56, 0.06, 0.04, 0.10])
-
-
-@functools.partial(jax.jit, static_argnames=("env", "n"))
-def _play(env, key, n):
-    k_reset, k_act = jax.random.split(key)
-    states, _ = jax.vmap(env.reset)(jax.random.split(k_reset, n))
-    first = states
-
-    def body(carry, k):
-        states, done = carry
-        actions = jax.random.choice(k, 6, (n,), p=jnp.asarray(ACTION_PROBS))
-        new, ts = jax.vmap(env.step)(states, actions)
-        out = {
-            "pos_before": states.agent_pos,
-            "pos_after": new.agent_pos,
-            "carrying_before": states.carrying,
-            "carrying_after": new.carrying,
-            "cost": ts.info["cost"],
-            "violation": ts.info["violation"],
-            "active": ~done,
-        }
-        return (new, done | ts.terminated | ts.truncated), out
-
-    keys = jax.random.split(k_act, env.max_steps)
-    _, steps = jax.lax.scan(body, (states, jnp.zeros((n,), bool)), keys)
-    return first, steps
-
-
-def _compare(env, seed, n):
-    first, steps = _play(env, jax.random.key(seed), n)
-    first, steps = jax.tree.map(np.asarray, (first.replace(key=None), steps))
-    counted = np.zeros(len(L.CONSTRAINT_TYPES), int)
-    for e in range(n):
-        sentence = L.detokenize(first.extras.constraint.tokens[e])
-        ref = ReferenceMonitor(L.parse(sentence), first.grid[e])
-        for t in range(env.max_steps):
-            if not steps["active"][t, e]:
-                break
-            cost, violation = ref.step(
-                steps["pos_before"][t, e], steps["pos_after"][t, e],
-                steps["carrying_before"][t, e], steps["carrying_after"][t, e],
-            )  # fmt: skip
-            got = (float(steps["cost"][t, e]), bool(steps["violation"][t, e]))
-            assert got == (cost, violation), (sentence, e, t)
-            counted[first.extras.constraint.type_id[e]] += 1
-    return counted, steps
-
 
 @pytest.mark.parametrize("steps_per_type", [3_000, pytest.param(100_000, marks=pytest.mark.slow)])
 def test_monitor_matches_the_reference(steps_per_type):
     env = HazardRooms(width=13, height=13, max_steps=150)
     n = int(steps_per_type * len(L.CONSTRAINT_TYPES) / env.max_steps * 1.3)
-    counted, steps = _compare(env, 0, n)
+    counted, steps = compare(env, 0, n)
     assert counted.min() >= steps_per_type, counted
     # The comparison saw every outcome: costs, violations, and costs without violations.
     active = steps["active"]
