@@ -60,6 +60,20 @@ HAZARD_SENTENCES = (
     "stay away from water and use the red door at most once",
 )
 
+
+def constrained_level(name: str, env_id: str, sentence: str, **env) -> Experiment:
+    """A MiniGrid level with a constraint (``jaxgrid.make(env_id, constraint=sentence,
+    **env)``), trained as HazardRooms is: a memory checker and a recurrent policy, since a
+    budget is a count, and the memory checker's label of the step into each frame, which
+    the shield asks about."""
+    return Experiment(name, env_id, checker_kind="memory", changes=dict(
+        memory_checker=dict(lookahead=0),
+        ppo=dict(env_kwargs=(("constraint", sentence), *env.items()), recurrent=True,
+                 # measured on the paper scenarios' window checker, not on a memory checker
+                 film_codes=False, alarm_forward=False),
+    ))  # fmt: skip
+
+
 EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
     # The paper's 2Rooms.
     Experiment("two_rooms", "TwoRooms-v0"),
@@ -89,6 +103,14 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
             film_codes=False, alarm_forward=False,
         ),
     )),  # fmt: skip
+    # MiniGrid levels with a constraint of each kind: lava that costs instead of ending the
+    # episode, so that a budget means something; a door colour the level draws at random
+    # (an episode without a red door has a vacuous constraint); a distance from lethal lava.
+    constrained_level("lava_crossing", "MiniGrid-LavaCrossingS9N1-v0",
+                      "do not step on lava more than twice", lava="cost"),
+    constrained_level("lava_gap", "MiniGrid-LavaGapS7-v0", "avoid lava", lava="cost"),
+    constrained_level("multi_room", "MiniGrid-MultiRoom-N2-S4-v0", "do not use the red door"),
+    constrained_level("dist_shift", "MiniGrid-DistShift1-v0", "never stand next to lava"),
     # Ablation: just-before (lookahead 1) against "after" (0) labels, TwoRooms in checker
     # mode (experiments.label_timing). Both arms lack what exists only at lookahead 1 (the
     # blocked and lava counterfactuals) or charges the step after an alarm.
@@ -100,6 +122,7 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
 )}  # fmt: skip
 
 #: The levels of ``python -m experiments.benchmark``: rows of :data:`EXPERIMENTS`.
-BENCHMARK_LEVELS: tuple[str, ...] = ("two_rooms", "two_rooms_lava", "three_rooms_key",
-                                     "hazard_rooms")  # fmt: skip
-
+BENCHMARK_LEVELS: tuple[str, ...] = (
+    "two_rooms", "two_rooms_lava", "three_rooms_key", "hazard_rooms",
+    "lava_crossing", "lava_gap", "multi_room", "dist_shift",
+)  # fmt: skip
