@@ -54,7 +54,7 @@ import numpy as np
 from jaxgrid import language
 from jaxgrid.constants import COLOR_TO_IDX
 from jaxgrid.language import COLOURS, Target, Trigger
-from jaxgrid.paraphrases import check_split, clause_rows
+from jaxgrid.paraphrases import ClauseRow, check_split, clause_rows
 
 __all__ = [
     "DOOR_CLAUSES",
@@ -66,6 +66,7 @@ __all__ = [
     "HELDOUT_DOOR_PHRASES",
     "LAVA_CLAUSES",
     "LEVELS",
+    "grammar_table",
     "LEVEL_TARGETS",
     "LEVEL_TRIGGERS",
     "NUM_TEMPLATES",
@@ -374,20 +375,24 @@ def hazard_rooms_rows(split: str, budgets: Iterable[int], distances: Iterable[in
     return [r for r in rows if r.clause.type != "budget" or r.clause.target.kind != "door"]
 
 
+def grammar_table(name: str, rows: Sequence[ClauseRow]) -> SentenceTable:
+    """A table of the whole language's token layout (:data:`jaxgrid.language.MAX_LEN`, every
+    word) over clause rows, each row's type its clause's."""
+    return SentenceTable(
+        name=name,
+        max_len=language.MAX_LEN,
+        vocab_size=language.vocab_size(),
+        rows=tuple(SentenceRow(r.sentence, r.template_id,
+                               language.CONSTRAINT_TYPES.index(r.clause.type), r.heldout)
+                   for r in rows),
+    )  # fmt: skip
+
+
+_EVERY = (range(1, language.MAX_BUDGET + 1), range(1, language.MAX_DISTANCE + 1))
+
 #: HazardRooms' table: its rows for every budget and distance the language allows (a
 #: HazardRooms env draws those of its ``split``, ``budgets`` and ``distances``).
-HAZARD_ROOMS = SentenceTable(
-    name="HazardRooms",
-    max_len=language.MAX_LEN,
-    vocab_size=language.vocab_size(),
-    rows=tuple(
-        SentenceRow(r.sentence, r.template_id, language.CONSTRAINT_TYPES.index(r.clause.type),
-                    r.heldout)
-        for r in hazard_rooms_rows(
-            "all", range(1, language.MAX_BUDGET + 1), range(1, language.MAX_DISTANCE + 1)
-        )
-    ),
-)  # fmt: skip
+HAZARD_ROOMS = grammar_table("HazardRooms", hazard_rooms_rows("all", *_EVERY))
 
 
 # --------------------------------------------------------------------------------------
@@ -408,16 +413,4 @@ LEVEL_TRIGGERS: tuple[Trigger, ...] = tuple(
 #: The levels' table: :func:`clause_rows` over :data:`LEVEL_TARGETS` and
 #: :data:`LEVEL_TRIGGERS` for every budget and distance the language allows (held-out phrases
 #: as :mod:`jaxgrid.paraphrases` says); the whole language's token layout.
-LEVELS = SentenceTable(
-    name="levels",
-    max_len=language.MAX_LEN,
-    vocab_size=language.vocab_size(),
-    rows=tuple(
-        SentenceRow(r.sentence, r.template_id, language.CONSTRAINT_TYPES.index(r.clause.type),
-                    r.heldout)
-        for r in clause_rows(
-            LEVEL_TARGETS, LEVEL_TRIGGERS, range(1, language.MAX_BUDGET + 1),
-            range(1, language.MAX_DISTANCE + 1),
-        )
-    ),
-)  # fmt: skip
+LEVELS = grammar_table("levels", clause_rows(LEVEL_TARGETS, LEVEL_TRIGGERS, *_EVERY))
