@@ -40,7 +40,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from agents.config import PPOConfig
+from agents.config import PPOConfig, renamed
 from jaxgrid import io, rundir
 
 __all__ = ["DIGESTS", "METRICS", "RUN_INFO", "CheckpointError", "ResumeError",
@@ -360,8 +360,8 @@ def check_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None,
     path = out / RUN_INFO
     start_over = "delete it to start over"
     try:
-        saved = io.read_json(path)
-        saved["seeds"], saved["config"]
+        saved = _upgraded(io.read_json(path))
+        saved["seeds"]
     except FileNotFoundError:
         raise ResumeError(f"{path}: missing, so the checkpoints in {out / 'checkpoints'} cannot "
                           f"be matched to a configuration; {start_over}") from None  # fmt: skip
@@ -398,12 +398,22 @@ def read_run_info(out: Path) -> dict:
     """``out/run.json`` as :func:`write_run_info` wrote it; a ``ValueError`` naming the
     directory if there is none (no run there) or the file if it is damaged."""
     try:
-        info = io.read_json(out / RUN_INFO)
-        info["config"]
+        info = _upgraded(io.read_json(out / RUN_INFO))
     except FileNotFoundError:
         raise ValueError(f"{out}: no run.json, so no run of agents.runner.run") from None
     except (ValueError, TypeError, KeyError) as e:
         raise ValueError(f"{out / RUN_INFO}: damaged ({e})") from None
+    return info
+
+
+def _upgraded(info: dict) -> dict:
+    """A ``run.json`` record with the settings of its config and sweep under today's names
+    (:data:`agents.config.RENAMED`); a ``KeyError`` or ``TypeError`` if it has no config."""
+    if not isinstance(info["config"], dict):
+        raise TypeError(f"its config is {type(info['config']).__name__}, not an object")
+    info = {**info, "config": renamed(info["config"])}
+    if info.get("sweep") is not None:
+        info["sweep"] = renamed(info["sweep"])
     return info
 
 

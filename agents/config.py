@@ -20,7 +20,10 @@ from jaxgrid.constrained import language_table
 REWARD_MODES = ("checker", "shaped", "none", "lagrangian", "shield", "shield_monitor")
 # Hyperparameters that can differ between the agents of one compiled program (a sweep):
 # they become traced per-agent values (``RunnerState.hparams``) instead of constants.
-SWEEPABLE = ("penalty", "checker_threshold", "cost_target", "ent_coef", "lr")
+SWEEPABLE = ("penalty", "checker_threshold", "cost_limit", "ent_coef", "lr")
+# Settings renamed since runs were first saved, old name -> new name: a saved run's settings
+# and sweeps (run.json, an experiment's config.json) are read under the new names.
+RENAMED = {"cost_target": "cost_limit"}
 # Modes whose actions pass through a shield (agents.shield), and the judge of each.
 SHIELD_JUDGES = {"shield": "checker", "shield_monitor": "monitor"}
 
@@ -39,7 +42,7 @@ class PPOConfig:
     the window ending at the new observation exceeds ``checker_threshold`` (``soft_checker``:
     minus ``penalty`` times the probability); ``lagrangian`` PPO-Lagrangian with the
     checker's alarms as the cost, a cost critic, and a multiplier learned to hold the alarms
-    per episode at ``cost_target``; ``shield`` removes, before each step, the actions whose
+    per episode at ``cost_limit``; ``shield`` removes, before each step, the actions whose
     candidate next window the checker scores above ``checker_threshold``
     (:mod:`agents.shield`), and ``shield_monitor`` those whose candidate step the ground-truth
     monitor flags. Both shields add ``penalty`` times the policy's own probability of the
@@ -124,7 +127,8 @@ class PPOConfig:
     # (the step the alarm predicts a violation of), not to the step that raised it: without
     # it, checker agents stop before the doors (docs/decisions.md)
     alarm_forward: bool = True
-    cost_target: float = 0.05  # Lagrangian: alarms per episode to hold
+    # the constrained modes: cost per episode to hold (alarms, or the monitor's costly steps)
+    cost_limit: float = 0.05
     lagrangian_lr: float = 0.05  # Lagrangian: multiplier step size
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
     novelty_bonus: float = 0.01  # episodic bonus per new (cell, carrying) pair, annealed to 0
@@ -204,7 +208,7 @@ class PPOConfig:
             "ent_coef",
             "vf_coef",
             "penalty",
-            "cost_target",
+            "cost_limit",
             "lagrangian_lr",
             "lagrangian_init",
             "novelty_bonus",
@@ -300,14 +304,21 @@ def check_checker(config: PPOConfig, checker, env) -> None:
         )
 
 
+def renamed(settings: dict) -> dict:
+    """``settings`` {name: value} with the names of :data:`RENAMED` replaced by the new ones,
+    so that what an older version saved reads as today's settings."""
+    return {RENAMED.get(name, name): value for name, value in settings.items()}
+
+
 def check_sweep(sweep, config: PPOConfig | None = None) -> dict[str, tuple[float, ...]]:
     """``sweep`` {name: values} as {name: distinct floats} in the given order ({} for None).
 
-    ``ValueError`` naming the problem for a name not in :data:`SWEEPABLE`, no or repeated
-    values, or a value that ``config`` (default: the defaults) would refuse.
+    A name of :data:`RENAMED` is read as its new name. ``ValueError`` naming the problem for
+    a name not in :data:`SWEEPABLE`, no or repeated values, or a value that ``config``
+    (default: the defaults) would refuse.
     """
     out = {}
-    for name, values in (sweep or {}).items():
+    for name, values in renamed(dict(sweep or {})).items():
         if name not in SWEEPABLE:
             raise ValueError(f"cannot sweep {name!r}: sweepable are {', '.join(SWEEPABLE)}")
         try:

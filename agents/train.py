@@ -345,7 +345,7 @@ class Learner(struct.PyTreeNode):
         episode_cost = stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
         lagrange = runner.lagrange
         if c.reward_mode == "lagrangian":
-            step = c.lagrangian_lr * (episode_cost - self.hparam(runner, "cost_target"))
+            step = c.lagrangian_lr * (episode_cost - self.hparam(runner, "cost_limit"))
             # Held at its start value until the constraint switches on (whatever ``penalty``).
             active = self.constraint_ramp(runner.update) > 0
             lagrange = jnp.where(active, jnp.maximum(0.0, lagrange + step), lagrange)

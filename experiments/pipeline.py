@@ -86,7 +86,7 @@ class ExperimentConfig:
     modes: Modes = REWARD_MODES  # the reward modes compared
     seeds: int = 5  # agents per mode, trained at once: seeds --seed, --seed + 1, ...
     # NAME=V1,V2,...: every seed runs with every value, all in one compiled program per mode
-    # (NAME: penalty, checker_threshold, cost_target, ent_coef or lr); results per value
+    # (NAME: penalty, checker_threshold, cost_limit, ent_coef or lr); results per value
     sweep: str | None = None
     behaviour_steps: int = 300_000  # env steps of the behaviour agent (phase a)
     checker_samples: int = 12_000  # windows of checker data (phase b)

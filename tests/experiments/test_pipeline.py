@@ -306,6 +306,23 @@ def test_out_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
         phases.prepare_out(gated)
 
 
+def test_out_recorded_under_a_renamed_setting_resumes(tmp_path):
+    """A config.json written when ``ppo.cost_limit`` was named ``ppo.cost_target``: the same
+    run with the same value, another one (named) with another."""
+    argv = ["--quick", "--no-progress", "--out", str(tmp_path)]
+    cfg = pipeline.parse_args(argv, two_rooms.SCENARIO)
+    phases.prepare_out(cfg)
+    saved = json.loads((tmp_path / "config.json").read_text())
+    saved["ppo"]["cost_target"] = saved["ppo"].pop("cost_limit")
+    (tmp_path / "config.json").write_text(json.dumps(saved))
+    phases.prepare_out(cfg)  # resumes, and records the new name from now on
+    assert "cost_target" not in json.loads((tmp_path / "config.json").read_text())["ppo"]
+    (tmp_path / "config.json").write_text(json.dumps(saved))
+    other = pipeline.parse_args([*argv, "--cost-limit", "0.5"], two_rooms.SCENARIO)
+    with pytest.raises(ValueError, match="ppo.cost_limit"):
+        phases.prepare_out(other)
+
+
 def test_out_extends_with_more_modes(tmp_path):
     """Another set of modes is the same run (each mode checks its own directory), and so is
     one without the closing baseline timing; another number of seeds is not."""
