@@ -15,17 +15,50 @@ import numpy as np
 import jaxgrid
 from jaxgrid.constrained import language_table
 
-# In display order: the paper's method first, then its baselines, then the shields (tables
-# and figures use it).
-REWARD_MODES = ("checker", "shaped", "none", "lagrangian", "shield", "shield_monitor")
+COST_SOURCES = ("checker", "monitor")  # the checker's alarms; the monitor's costly steps
+
+
+@dataclasses.dataclass(frozen=True)
+class Mode:
+    """A reward mode: where its cost comes from and what the learner does with it.
+
+    ``sources`` are the cost sources (:data:`COST_SOURCES`) it can learn from, its default
+    first (none: it learns from the env reward alone). The cost is a penalty on the reward
+    (``penalty``), a constraint whose Lagrange multiplier moves by gradient steps or a PID
+    controller (``multiplier``), a budget in the observation (``budget``), or a constraint on
+    the policy update (``policy_update``); a ``shield`` masks the actions it judges costly.
+    """
+
+    sources: tuple[str, ...] = ()
+    penalty: bool = False  # the training reward is the env reward minus penalty x cost
+    multiplier: str | None = None  # "gradient" or "pid": how the Lagrange multiplier moves
+    policy_update: str = "ppo"  # "ppo" (clipped ratio), "focops" or "cpo"
+    budget: bool = False  # the remaining safety budget is observed, the reward cut once spent
+    shield: bool = False  # the cost source vetoes actions (agents.shield)
+
+    @property
+    def cost_critic(self) -> bool:
+        """Whether the learner estimates the cost's advantage (a cost critic and its GAE)."""
+        return self.multiplier is not None or self.policy_update != "ppo"
+
+
+# Every reward mode, in display order: the paper's method first, then its baselines, then the
+# shields (tables and figures use it).
+MODES = {
+    "checker": Mode(("checker",), penalty=True),
+    "shaped": Mode(("monitor",), penalty=True),
+    "none": Mode(),
+    "lagrangian": Mode(COST_SOURCES, multiplier="gradient"),
+    "shield": Mode(("checker",), shield=True),
+    "shield_monitor": Mode(("monitor",), shield=True),
+}
+REWARD_MODES = tuple(MODES)
 # Hyperparameters that can differ between the agents of one compiled program (a sweep):
 # they become traced per-agent values (``RunnerState.hparams``) instead of constants.
 SWEEPABLE = ("penalty", "checker_threshold", "cost_limit", "ent_coef", "lr")
 # Settings renamed since runs were first saved, old name -> new name: a saved run's settings
 # and sweeps (run.json, an experiment's config.json) are read under the new names.
 RENAMED = {"cost_target": "cost_limit"}
-# Modes whose actions pass through a shield (agents.shield), and the judge of each.
-SHIELD_JUDGES = {"shield": "checker", "shield_monitor": "monitor"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,11 +75,13 @@ class PPOConfig:
     the window ending at the new observation exceeds ``checker_threshold`` (``soft_checker``:
     minus ``penalty`` times the probability); ``lagrangian`` PPO-Lagrangian with the
     checker's alarms as the cost, a cost critic, and a multiplier learned to hold the alarms
-    per episode at ``cost_limit``; ``shield`` removes, before each step, the actions whose
-    candidate next window the checker scores above ``checker_threshold``
-    (:mod:`agents.shield`), and ``shield_monitor`` those whose candidate step the ground-truth
-    monitor flags. Both shields add ``penalty`` times the policy's own probability of the
-    blocked actions to the loss, so that the policy itself learns what was blocked.
+    per episode at ``cost_limit`` (with ``cost_source="monitor"`` the cost is the monitor's
+    instead: 1 on each step with a costly event, the safe-RL convention); ``shield``
+    removes, before each step, the actions whose candidate next window the checker scores
+    above ``checker_threshold`` (:mod:`agents.shield`), and ``shield_monitor`` those whose
+    candidate step the ground-truth monitor flags. Both shields add ``penalty`` times the
+    policy's own probability of the blocked actions to the loss, so that the policy itself
+    learns what was blocked.
 
     With ``alarm_onset`` the ``checker`` and ``lagrangian`` signals count only the step that
     raises an alarm, not its repeats while it stays up (an ablation: ``docs/decisions.md``).
@@ -108,6 +143,9 @@ class PPOConfig:
     vf_coef: float = 0.5  # value-loss weight
     max_grad_norm: float = 0.5  # global gradient-norm clip
     reward_mode: str = "none"  # one of REWARD_MODES
+    # where the cost comes from, one of COST_SOURCES that the mode can use; None: its own
+    # (MODES[reward_mode].sources[0]: lagrangian and the constrained modes use the checker)
+    cost_source: str | None = None
     # reward subtracted per violation (shaped) or alarm (checker); shields: weight of the
     # policy's probability of blocked actions in the loss
     penalty: float = 1.0
@@ -233,6 +271,16 @@ class PPOConfig:
             raise ValueError(
                 f"PPOConfig.reward_mode must be one of {REWARD_MODES}, got {self.reward_mode!r}"
             )
+        sources = MODES[self.reward_mode].sources
+        if self.cost_source is not None and self.cost_source not in COST_SOURCES:
+            raise ValueError(f"PPOConfig.cost_source must be None or one of {COST_SOURCES}, "
+                             f"got {self.cost_source!r}")  # fmt: skip
+        if self.cost_source is not None and self.cost_source not in sources:
+            uses = f"learns from the {' or the '.join(sources)} only" if sources else "has no cost"
+            raise ValueError(
+                f"PPOConfig.cost_source={self.cost_source!r}: reward_mode={self.reward_mode!r} "
+                f"{uses} (leave cost_source None)"
+            )
         if self.alarm_forward and (self.alarm_onset or self.soft_checker):
             raise ValueError(
                 "PPOConfig.alarm_forward charges the previous step's alarm; it does not combine "
@@ -272,13 +320,24 @@ class PPOConfig:
         return self.num_chunks * self.eval_every
 
     @property
+    def mode(self) -> Mode:
+        """The reward mode's row of :data:`MODES`."""
+        return MODES[self.reward_mode]
+
+    @property
+    def cost_from(self) -> str | None:
+        """The cost source of the run: ``cost_source``, else the mode's own (None: no cost)."""
+        sources = self.mode.sources
+        return self.cost_source if self.cost_source is not None else (sources or (None,))[0]
+
+    @property
     def uses_checker(self) -> bool:
-        return self.reward_mode in ("checker", "lagrangian", "shield")
+        return self.cost_from == "checker"
 
     @property
     def shield_judge(self) -> str | None:
         """``"checker"`` or ``"monitor"`` in the shield modes, else None."""
-        return SHIELD_JUDGES.get(self.reward_mode)
+        return self.cost_from if self.mode.shield else None
 
     def make_env(self):
         return jaxgrid.make(self.env_id, **dict(self.env_kwargs))
@@ -287,9 +346,11 @@ class PPOConfig:
 def check_checker(config: PPOConfig, checker, env) -> None:
     """Fail fast, before any compile, when the checker does not fit the run."""
     if config.uses_checker and checker is None:
+        instead = ", or learn from the monitor's cost: cost_source='monitor'"
         raise ValueError(
-            f"PPOConfig.reward_mode={config.reward_mode!r} needs a trained checker: pass "
-            "checker=checker.load(DIR) (or train one with `python -m checker`)"
+            f"PPOConfig.reward_mode={config.reward_mode!r} learns from the checker's alarms and "
+            "needs a trained checker: pass checker=checker.load(DIR) (or train one with "
+            f"`python -m checker`){instead if 'monitor' in config.mode.sources else ''}"
         )
     if checker is not None and checker.config.view_size != env.view_size:
         raise ValueError(

@@ -21,6 +21,12 @@ def violation_of(ts) -> jax.Array:
     return ts.info.get("violation", jnp.zeros_like(ts.terminated))
 
 
+def cost_of(ts) -> jax.Array:
+    """The monitor's float32 cost of a (batched) timestep (1 where a costly event happened,
+    within a budget or not); zeros for envs without a constraint."""
+    return ts.info.get("cost", jnp.zeros_like(ts.reward))
+
+
 def play_episodes(
     env,
     act: Callable[[dict, jax.Array], jax.Array],

@@ -85,7 +85,7 @@ def ppo_loss(
     entropy = -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1).mean()
 
     adv = batch["advantage"]
-    if c.reward_mode == "lagrangian":
+    if c.mode.multiplier is not None:
         adv = (adv - lagrange * batch["cost_advantage"]) / (1.0 + lagrange)
     adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     ratio = jnp.exp(log_prob - batch["log_prob"])
@@ -98,7 +98,7 @@ def ppo_loss(
 
     v_loss = value_loss(value, batch["value"], batch["target"])
     cv_loss = jnp.zeros(())
-    if c.reward_mode == "lagrangian":
+    if c.mode.cost_critic:
         cv_loss = value_loss(cost_value, batch["cost_value"], batch["cost_target"])
     ent_coef = c.ent_coef if ent_coef is None else ent_coef
     total = actor_loss + c.vf_coef * (v_loss + cv_loss) - ent_coef * entropy

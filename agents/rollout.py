@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from agents import shield as shield_mod
 from agents.checker_carry import embed
 from agents.config import PPOConfig
-from agents.evaluation import violation_of
+from agents.evaluation import cost_of, violation_of
 from checker.protocol import CheckerProtocol
 from jaxgrid import language
 from jaxgrid.constants import EMPTY, FORWARD
@@ -59,7 +59,7 @@ class Transition(struct.PyTreeNode):
     value: jax.Array
     cost_value: jax.Array
     reward: jax.Array  # shaped training reward, truncation bootstrap included
-    cost: jax.Array  # Lagrangian cost, truncation bootstrap included
+    cost: jax.Array  # the constrained modes' cost, truncation bootstrap included
     done: jax.Array
     allowed: jax.Array | None = None  # bool (E, A): the shield's mask (shield modes only)
 
@@ -153,11 +153,12 @@ def env_step(
     ``penalty`` times the ground-truth violation (``shaped``) or the checker's alarm
     (``checker``; its probability with ``soft_checker``; with ``alarm_onset`` only where the
     previous step of the episode did not alarm; with ``alarm_forward`` the previous step's
-    alarm where this step moves forward); ``lagrangian`` puts the alarm in the cost
-    instead. The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to
-    the episode (with ``novelty_changes``, also for a cell's first change in it). With a
-    ``shield`` (:class:`agents.shield.Shield`) the action is sampled from the policy
-    restricted to the allowed actions, and the mask is kept in the transition.
+    alarm where this step moves forward); the modes with a cost critic (``lagrangian``) put
+    that signal in the cost instead, or with ``cost_source="monitor"`` the monitor's cost.
+    The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to the episode (with
+    ``novelty_changes``, also for a cell's first change in it). With a ``shield``
+    (:class:`agents.shield.Shield`) the action is sampled from the policy restricted to the
+    allowed actions, and the mask is kept in the transition.
     Where an episode was cut by the time limit (not terminated), the reward and
     cost add ``gamma`` times the final observation's values, so GAE treats the step as
     terminal without losing the future. ``threshold`` (None: ``checker_threshold``) may be a
@@ -202,8 +203,8 @@ def env_step(
         reward = reward - penalty * violation.astype(jnp.float32)
     elif c.reward_mode == "checker":
         reward = reward - penalty * signal
-    elif c.reward_mode == "lagrangian":
-        cost = signal
+    elif c.mode.cost_critic:
+        cost = signal if c.cost_from == "checker" else cost_of(ts)
     if c.end_episode and c.reward_mode in ("shaped", "checker"):
         # The learner ends the episode where the signal fired: a terminal step, then a fresh
         # episode, as if the env had ended it.

@@ -52,7 +52,7 @@ from jaxgrid.wrappers import BatchedAutoReset
 class RunnerState(struct.PyTreeNode):
     params: Any
     opt_state: Any
-    lagrange: jax.Array  # float32 multiplier of the Lagrangian mode (0 otherwise)
+    lagrange: jax.Array  # float32 Lagrange multiplier of the cost (0 in modes without one)
     key: jax.Array
     update: jax.Array  # int32 number of updates done
     env: EnvCarry
@@ -207,7 +207,7 @@ class Learner(struct.PyTreeNode):
         return RunnerState(
             params=params,
             opt_state=self.optimizer.init(params),
-            lagrange=jnp.float32(c.lagrangian_init if c.reward_mode == "lagrangian" else 0.0),
+            lagrange=jnp.float32(c.lagrangian_init if c.mode.multiplier else 0.0),
             key=key,
             update=jnp.zeros((), jnp.int32),
             env=carry,
@@ -324,7 +324,7 @@ class Learner(struct.PyTreeNode):
         }  # fmt: skip
         if traj.allowed is not None:
             batch["allowed"] = traj.allowed
-        if c.reward_mode == "lagrangian":
+        if c.mode.cost_critic:
             cadv, ctarget = gae(
                 traj.cost_value, traj.cost, traj.done, last_cost_value, c.gamma, c.gae_lambda
             )
@@ -344,7 +344,7 @@ class Learner(struct.PyTreeNode):
         # to what a constraint budget is about, and is not diluted by long safe stretches.
         episode_cost = stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
         lagrange = runner.lagrange
-        if c.reward_mode == "lagrangian":
+        if c.mode.multiplier == "gradient":
             step = c.lagrangian_lr * (episode_cost - self.hparam(runner, "cost_limit"))
             # Held at its start value until the constraint switches on (whatever ``penalty``).
             active = self.constraint_ramp(runner.update) > 0
