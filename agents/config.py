@@ -49,10 +49,13 @@ MODES = {
     "shaped": Mode(("monitor",), penalty=True),
     "none": Mode(),
     "lagrangian": Mode(COST_SOURCES, multiplier="gradient"),
+    "pid_lagrangian": Mode(COST_SOURCES, multiplier="pid"),
     "shield": Mode(("checker",), shield=True),
     "shield_monitor": Mode(("monitor",), shield=True),
 }
 REWARD_MODES = tuple(MODES)
+# The modes the paper's experiments compare (``python -m experiments.two_rooms`` trains them).
+PAPER_MODES = ("checker", "shaped", "none", "lagrangian", "shield", "shield_monitor")
 # Hyperparameters that can differ between the agents of one compiled program (a sweep):
 # they become traced per-agent values (``RunnerState.hparams``) instead of constants.
 SWEEPABLE = ("penalty", "checker_threshold", "cost_limit", "ent_coef", "lr")
@@ -76,7 +79,12 @@ class PPOConfig:
     minus ``penalty`` times the probability); ``lagrangian`` PPO-Lagrangian with the
     checker's alarms as the cost, a cost critic, and a multiplier learned to hold the alarms
     per episode at ``cost_limit`` (with ``cost_source="monitor"`` the cost is the monitor's
-    instead: 1 on each step with a costly event, the safe-RL convention); ``shield``
+    instead: 1 on each step with a costly event, the safe-RL convention);
+    ``pid_lagrangian`` the same with the multiplier set by a PID controller on the cost per
+    episode (Stooke, Achiam and Abbeel 2020; :func:`agents.losses.pid_update`: ``pid_kp``
+    on its excess over ``cost_limit``, ``pid_ki`` on the excess summed and clipped at 0,
+    ``pid_kd`` on its rise since the last update), so that it reacts at once to a cost that
+    appears and stops pushing as soon as the cost is back under the limit; ``shield``
     removes, before each step, the actions whose candidate next window the checker scores
     above ``checker_threshold`` (:mod:`agents.shield`), and ``shield_monitor`` those whose
     candidate step the ground-truth monitor flags. Both shields add ``penalty`` times the
@@ -169,6 +177,10 @@ class PPOConfig:
     cost_limit: float = 0.05
     lagrangian_lr: float = 0.05  # Lagrangian: multiplier step size
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
+    # PID Lagrangian: the multiplier's gains on the cost error, its integral and the cost's rise
+    pid_kp: float = 1.0
+    pid_ki: float = 0.05
+    pid_kd: float = 0.1
     novelty_bonus: float = 0.01  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
     # the bonus pays for (cell, carrying) pairs; False: for cells, whatever is carried
@@ -249,6 +261,9 @@ class PPOConfig:
             "cost_limit",
             "lagrangian_lr",
             "lagrangian_init",
+            "pid_kp",
+            "pid_ki",
+            "pid_kd",
             "novelty_bonus",
         )
         for name in nonnegative:

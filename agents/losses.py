@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import flax.struct as struct
 import jax
 import jax.numpy as jnp
 from jax import lax
@@ -59,15 +60,16 @@ def ppo_loss(
     blocked_weight: jax.Array | float = 0.0,
     ent_coef: jax.Array | float | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Clipped PPO loss of one minibatch, with the cost critic in the Lagrangian mode.
+    """Clipped PPO loss of one minibatch, with the cost critic in the constrained modes.
 
     ``policy(params, image, direction, sentence) -> (logits (B, A), value (B,),
     cost_value (B,))``. ``batch`` holds (B, ...) arrays ``image``, ``direction``,
     ``sentence``, ``action``, ``log_prob``, ``value``, ``advantage``, ``target`` and, in the
-    Lagrangian mode, ``cost_value``, ``cost_advantage``, ``cost_target``. There the advantage
-    is ``(A - lagrange * A_cost) / (1 + lagrange)``. Advantages are normalised per minibatch;
-    value losses are clipped as in PPO2. With a shield's bool (B, A) ``allowed`` in ``batch``,
-    the policy is the one that acted, restricted to the allowed actions, and
+    modes with a cost critic, ``cost_value``, ``cost_advantage``, ``cost_target``. In the
+    Lagrangian modes the advantage is ``(A - lagrange * A_cost) / (1 + lagrange)``.
+    Advantages are normalised per minibatch; value losses are clipped as in PPO2. With a
+    shield's bool (B, A) ``allowed`` in ``batch``, the policy is the one that acted,
+    restricted to the allowed actions, and
     ``blocked_weight`` times the unrestricted policy's probability of the blocked actions is
     added, so that the policy learns to avoid them itself. ``ent_coef`` (None: the config's)
     may be a traced per-agent value. Returns ``(loss, statistics)``.
@@ -109,6 +111,32 @@ def ppo_loss(
         "cost_value_loss": cv_loss, "entropy": entropy, "approx_kl": approx_kl,
         "blocked_prob": blocked,
     }  # fmt: skip
+
+
+class PIDState(struct.PyTreeNode):
+    """The PID Lagrangian's memory between updates (float32 scalars)."""
+
+    integral: jax.Array  # the cost error summed over the updates, clipped at 0
+    cost: jax.Array  # the previous update's cost per episode
+
+
+def pid_update(state: PIDState, cost: jax.Array, limit, kp, ki, kd) -> tuple[jax.Array, PIDState]:
+    """The PID Lagrangian's multiplier for cost per episode ``cost`` (Stooke, Achiam and
+    Abbeel 2020, their Algorithm 2 without smoothing): ``max(0, kp * e + ki * I + kd * d)``
+    with ``e = cost - limit``, ``I = max(0, I + e)`` and ``d = max(0, cost - previous cost)``.
+
+    The proportional term answers a cost at once and goes when it goes; the integral is the
+    Lagrangian's multiplier (``ki`` its step size) and, clipped at 0, does not wind up while the
+    cost stays under the limit; the derivative damps a rising cost only. Returns
+    ``(multiplier, next state)``.
+    """
+    error = cost - limit
+    integral = jnp.maximum(0.0, state.integral + error)
+    rise = jnp.maximum(0.0, cost - state.cost)
+    lagrange = jnp.maximum(0.0, kp * error + ki * integral + kd * rise)
+    return lagrange.astype(jnp.float32), PIDState(
+        integral=integral.astype(jnp.float32), cost=jnp.asarray(cost, jnp.float32)
+    )
 
 
 def shuffle(key: jax.Array, n: int) -> jax.Array:

@@ -6,7 +6,10 @@ One update is
    ``num_envs`` auto-resetting environments (policy, checker, reward shaping, truncation
    bootstrap);
 2. :func:`agents.losses.gae`;
-3. ``update_epochs`` x ``num_minibatches`` steps of :func:`agents.losses.ppo_loss`.
+3. ``update_epochs`` x ``num_minibatches`` steps of :func:`agents.losses.ppo_loss`;
+4. the cost's Lagrange multiplier (a gradient step, or the PID controller's).
+
+One thing, the learner of every reward mode (:data:`agents.config.MODES`), hence its length.
 
 ``train(key)`` scans :attr:`PPOConfig.num_chunks` chunks of ``eval_every`` updates, each
 followed by an evaluation on fixed seeds; it is pure, so ``jax.jit(jax.vmap(train))`` runs
@@ -32,7 +35,7 @@ from jax import lax
 from agents import checker_carry, rollout
 from agents.config import SWEEPABLE, PPOConfig, check_checker
 from agents.evaluation import play_episodes, summarise
-from agents.losses import gae, ppo_loss, shuffle
+from agents.losses import PIDState, gae, pid_update, ppo_loss, shuffle
 from agents.networks import (
     ActorCritic,
     apply_policy,
@@ -61,6 +64,9 @@ class RunnerState(struct.PyTreeNode):
     hparams: dict = struct.field(default_factory=dict)
     # float32 training success rate of the last update (read only with a penalty gate)
     success: jax.Array = struct.field(default_factory=lambda: jnp.zeros((), jnp.float32))
+    # the PID Lagrangian's controller memory (None in the other modes: no leaves, so their
+    # state and checkpoints are as they were)
+    pid: PIDState | None = None
 
 
 class Learner(struct.PyTreeNode):
@@ -197,7 +203,7 @@ class Learner(struct.PyTreeNode):
             lang = self.checker.encode_language(self.table[:, : self.words])[sentence]
         emb = checker_carry.embed(self.checker, obs["image"])
         frames = checker_carry.start_memory(self.checker, emb, lang)
-        zeros = jnp.zeros((c.num_envs,), jnp.float32)
+        zeros, zero = jnp.zeros((c.num_envs,), jnp.float32), jnp.float32(0.0)
         carry = EnvCarry(
             state=states, obs=obs, sentence=sentence,
             frames=frames, visited=rollout.config_visits(states, env, c),
@@ -213,6 +219,7 @@ class Learner(struct.PyTreeNode):
             env=carry,
             hparams={k: jnp.asarray(v, jnp.float32) for k, v in hparams.items()},
             success=jnp.zeros((), jnp.float32),
+            pid=PIDState(zero, zero) if c.mode.multiplier == "pid" else None,
         )
 
     # -- rollout and update -------------------------------------------------------------
@@ -280,10 +287,10 @@ class Learner(struct.PyTreeNode):
         (params, opt_state), info = lax.scan(
             epoch, (params, runner.opt_state), jax.random.split(perm_key, c.update_epochs)
         )
-        lagrange, metrics = self._statistics(runner, info, stats)
+        (lagrange, pid), metrics = self._statistics(runner, info, stats)
         runner = runner.replace(
             params=params, opt_state=opt_state, lagrange=lagrange, key=key,
-            update=runner.update + 1, env=env,
+            update=runner.update + 1, env=env, pid=pid,
         )  # fmt: skip
         if c.penalty_gate > 0:  # the gate's success rate (held where no episode finished)
             episodes = metrics["episodes"]
@@ -337,18 +344,28 @@ class Learner(struct.PyTreeNode):
         return jax.tree.map(lambda x: x.reshape((c.batch_size,) + x.shape[2:]), batch)
 
     def _statistics(self, runner: RunnerState, info: dict, stats: dict):
-        """The next Lagrange multiplier and the update's metrics."""
+        """``((next Lagrange multiplier, next PID state), the update's metrics)``."""
         c = self.config
         cost_rate = stats["cost"].sum() / c.batch_size
         # Cost per episode (rollout cost over the episodes it finished): the multiplier reacts
         # to what a constraint budget is about, and is not diluted by long safe stretches.
         episode_cost = stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
-        lagrange = runner.lagrange
+        lagrange, pid = runner.lagrange, runner.pid
+        # Held at its start value until the constraint switches on (whatever ``penalty``).
+        active = self.constraint_ramp(runner.update) > 0
+        limit = self.hparam(runner, "cost_limit")
         if c.mode.multiplier == "gradient":
-            step = c.lagrangian_lr * (episode_cost - self.hparam(runner, "cost_limit"))
-            # Held at its start value until the constraint switches on (whatever ``penalty``).
-            active = self.constraint_ramp(runner.update) > 0
+            step = c.lagrangian_lr * (episode_cost - limit)
             lagrange = jnp.where(active, jnp.maximum(0.0, lagrange + step), lagrange)
+        elif c.mode.multiplier == "pid":
+            # The first update has no previous cost: no derivative. The controller follows
+            # the cost from the start, and moves the multiplier once the constraint is on.
+            previous = jnp.where(runner.update == 0, episode_cost, pid.cost)
+            new, moved = pid_update(
+                pid.replace(cost=previous), episode_cost, limit, c.pid_kp, c.pid_ki, c.pid_kd
+            )
+            lagrange = jnp.where(active, new, lagrange)
+            pid = moved.replace(integral=jnp.where(active, moved.integral, pid.integral))
         metrics = jax.tree.map(jnp.mean, info)
         totals = jax.tree.map(jnp.sum, stats)
         metrics.update(
@@ -360,7 +377,7 @@ class Learner(struct.PyTreeNode):
             episode_cost=episode_cost,
             lagrange=lagrange,
         )
-        return lagrange, metrics
+        return (lagrange, pid), metrics
 
     # -- evaluation ---------------------------------------------------------------------
     def act(self, params, obs, key, allowed=None, memory=None):

@@ -56,6 +56,7 @@ MODE_LABELS: dict[str, str] = {
     "shaped": "ground-truth shaped",
     "none": "unconstrained",
     "lagrangian": "PPO-Lagrangian",
+    "pid_lagrangian": "PID Lagrangian",
     "shield": "checker shield",
     "shield_monitor": "monitor shield",
 }

@@ -1,5 +1,6 @@
-"""``agents.losses``: GAE against a numpy loop, and the minibatch shuffle (a permutation set
-by its key, spreading every item evenly over minibatches)."""
+"""``agents.losses``: GAE against a numpy loop, the minibatch shuffle (a permutation set by its
+key, spreading every item evenly over minibatches), and the PID Lagrangian's multiplier
+answering a step of the cost."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 from helpers.agents_cases import fast_jit
 
-from agents.losses import gae, shuffle
+from agents.losses import PIDState, gae, pid_update, shuffle
 
 
 def gae_reference(values, rewards, dones, last_value, gamma, lam):
@@ -63,3 +64,32 @@ def test_shuffle_spreads_every_item_evenly_over_minibatches():
     # ordered the sort).
     together = (where[:, :-1] == where[:, 1:]).mean()
     assert abs(together - 15 / 63) < 0.02
+
+
+def test_pid_multiplier_answers_a_cost_step():
+    """A cost that steps from 0 to 2 (limit 0.5) for 4 updates, back to 0 for 14, then up
+    again: the multiplier jumps at once (proportional and derivative terms), then builds up
+    (integral), falls to 0 as soon as the cost is back under the limit, and answers the
+    second step exactly as the first: the integral, clipped at 0, did not wind up below it."""
+    kp, ki, kd, limit = 1.0, 0.05, 0.5, 0.5
+    costs = [0.0] * 3 + [2.0] * 4 + [0.0] * 14 + [2.0] * 4
+    step = fast_jit(lambda s, c: pid_update(s, c, limit, kp, ki, kd))
+    state = PIDState(np.float32(0.0), np.float32(0.0))
+    lams, integrals = [], []
+    for cost in costs:
+        lam, state = step(state, np.float32(cost))
+        lams.append(float(lam))
+        integrals.append(float(state.integral))
+    lams, integrals = np.array(lams), np.array(integrals)
+    assert np.all(lams[:3] == 0) and np.all(integrals[:3] == 0)  # under the limit: 0, no windup
+    # The step: the proportional and derivative terms at once, then the integral's build-up.
+    np.testing.assert_allclose(lams[3], kp * 1.5 + ki * 1.5 + kd * 2.0, rtol=1e-6)
+    np.testing.assert_allclose(np.diff(lams[4:7]), ki * 1.5, rtol=1e-5)
+    np.testing.assert_allclose(integrals[3:7], 1.5 * np.arange(1, 5), rtol=1e-6)
+    # Back under the limit: the proportional term takes the multiplier to 0 at once while the
+    # integral drains, clipped at 0 instead of winding up below it.
+    assert lams[6] > 1 and np.all(lams[7:21] == 0)
+    np.testing.assert_allclose(integrals[7:21], np.maximum(0, 6 - 0.5 * np.arange(1, 15)))
+    assert np.all(integrals[18:21] == 0) and np.all(integrals >= 0)
+    # The second step is answered as the first, bit for bit.
+    np.testing.assert_array_equal(lams[21:], lams[3:7])

@@ -14,7 +14,7 @@ import pytest
 from helpers.cli_help import help_entries, squeezed
 from helpers.experiment_runs import check_outputs, quick, refused_before_any_compile
 
-from agents.config import REWARD_MODES, PPOConfig
+from agents.config import PAPER_MODES, REWARD_MODES, PPOConfig
 from checker.train import CheckerTrainConfig
 from experiments import (
     hazard_rooms,
@@ -108,7 +108,7 @@ def test_presets_keep_the_published_configurations(experiment, name):
             ppo.penalty_start, ppo.penalty_warmup, ppo.ent_coef, ppo.novelty_bonus, ppo.seed,
             cfg.gif_episodes) == (64, 4, 4, 1e-3, 1.0, 0.0, 0.5, 0.01, 0.01, 0, 4)  # fmt: skip
     assert (chk.window, chk.lookahead, chk.test_fraction, chk.val_fraction) == (5, 1, 0.15, 0.15)
-    assert cfg.modes == REWARD_MODES and (cfg.quick, cfg.paper) == (name == "quick",
+    assert cfg.modes == PAPER_MODES and (cfg.quick, cfg.paper) == (name == "quick",
                                                                      name == "paper")  # fmt: skip
     updates = ppo.total_timesteps // ppo.batch_size
     for mode in REWARD_MODES:  # evaluated every max(1, updates // curve_points) updates
