@@ -46,7 +46,8 @@ from jaxgrid import io, rundir
 __all__ = ["DIGESTS", "METRICS", "RUN_INFO", "CheckpointError", "ResumeError",
            "check_run_info", "checker_sha256", "finished", "kept", "make_manager",
            "read_run_info", "record_digests", "records_sha256", "restore", "resume_point",
-           "run_info", "save", "saved_config", "verified_step", "write_run_info"]  # fmt: skip
+           "run_info", "save", "saved_config", "stored", "verified_step",
+           "write_run_info"]  # fmt: skip
 
 DIGESTS = "checkpoints.json"
 METRICS = "metrics.jsonl"
@@ -77,10 +78,37 @@ def make_manager(path: Path):
 
 
 def save_args(state):
-    """The orbax arguments :func:`save` writes ``state`` with (a standard pytree save)."""
+    """The orbax arguments :func:`save` writes ``state`` with (a standard pytree save of
+    :func:`stored`)."""
     import orbax.checkpoint as ocp
 
-    return ocp.args.StandardSave(state)
+    return ocp.args.StandardSave(stored(state))
+
+
+def stored(tree):
+    """``tree`` as checkpoints hold it: its dataclasses as dicts of their pytree fields,
+    without the fields that are None. Such a field is a reward mode's own state (the PID
+    controller's, Saute's budget), absent in the other modes, so that adding one changes no
+    other mode's checkpoint: those written before it existed still restore."""
+    if dataclasses.is_dataclass(tree) and not isinstance(tree, type):
+        return {
+            f.name: stored(getattr(tree, f.name))
+            for f in dataclasses.fields(tree)
+            if f.metadata.get("pytree_node", True) and getattr(tree, f.name) is not None
+        }
+    if isinstance(tree, dict):
+        return {k: stored(v) for k, v in tree.items()}
+    return tree
+
+
+def _rebuilt(template, saved):
+    """The inverse of :func:`stored`: ``template`` (a state or its abstract shapes) with the
+    values of ``saved`` in the fields it holds."""
+    if dataclasses.is_dataclass(template) and not isinstance(template, type):
+        return template.replace(**{k: _rebuilt(getattr(template, k), v) for k, v in saved.items()})
+    if isinstance(template, dict):
+        return {k: _rebuilt(template[k], v) for k, v in saved.items()}
+    return saved
 
 
 def kept(manager, out: Path | None, step: int | None = None) -> str:
@@ -289,7 +317,9 @@ def restore(manager, step, abstract, shardings):
     else:
         target = abstract
     try:
-        return manager.restore(step, args=ocp.args.StandardRestore(target))
+        return _rebuilt(
+            target, manager.restore(step, args=ocp.args.StandardRestore(stored(target)))
+        )
     except Exception as e:  # orbax's and tensorstore's errors share no base class
         error = e
     # Fields are added last, with a default: try without the newest one, then two, ...
@@ -300,7 +330,7 @@ def restore(manager, step, abstract, shardings):
     restored = None
     for k in range(1, len(defaulted) + 1):
         added = defaulted[-k:]
-        older = {f.name: getattr(target, f.name) for f in fields if f.name not in added}
+        older = {k: v for k, v in stored(target).items() if k not in added}
         try:
             restored = manager.restore(step, args=ocp.args.StandardRestore(older))
             break
@@ -318,7 +348,7 @@ def restore(manager, step, abstract, shardings):
     print(f"{manager.directory}: checkpoint {step} predates {', '.join(added)}; "
           "starting from zeros", file=sys.stderr)  # fmt: skip
     filled = {n: jax.tree.map(zeros, getattr(target, n)) for n in added}
-    return type(target)(**restored, **filled)
+    return _rebuilt(target, restored).replace(**filled)
 
 
 # ----------------------------------------------------------------------------------------

@@ -1,17 +1,21 @@
 """The constrained-RL baselines in the learner: each trains through the one rollout, loss and
 update, and shows the behaviour that defines it on a tiny run: the PID Lagrangian's
-multiplier follows its controller."""
+multiplier follows its controller. A mode's own state goes through checkpoints, and stays
+out of the other modes' (theirs hold what they held before it existed)."""
 
 from __future__ import annotations
 
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers.agents_cases import TINY, fast_jit
+from helpers.agents_cases import TINY, fast_jit, leaves
 
-from agents.train import make_train
+from agents import checkpoint
+from agents.losses import PIDState
+from agents.train import make_learner, make_train
 
 # Threshold ~0: every step alarms, so the cost per episode is the rollout's steps over the
 # episodes it finished, far above the limit; episodes of 5 steps end 8 or 16 times in the 8
@@ -45,3 +49,23 @@ def test_pid_lagrangian_multiplier_follows_its_controller(pid_run):
     runner = pid_run["runner"]
     np.testing.assert_allclose(runner.pid.integral, integral, rtol=1e-5)
     assert runner.pid.cost == cost[-1] and runner.lagrange == lam[-1]
+
+
+def test_a_modes_own_state_goes_through_checkpoints_and_only_there(tmp_path, tiny_checker):
+    key = jax.random.PRNGKey(0)
+    pid = make_learner(PID, tiny_checker)
+    runner = fast_jit(pid.init)(key)
+    runner = runner.replace(pid=PIDState(jnp.float32(1.5), jnp.float32(2.5)))
+    manager = checkpoint.make_manager(tmp_path / "pid" / "checkpoints")
+    checkpoint.save(manager, 1, runner, tmp_path / "pid", [])
+    back = checkpoint.restore(manager, 1, jax.eval_shape(pid.init, key), None)
+    assert (float(back.pid.integral), float(back.pid.cost)) == (1.5, 2.5)
+    for a, b in zip(leaves(back), leaves(runner), strict=True):
+        np.testing.assert_array_equal(a, b)
+    # A mode without it saves no trace of it: the checkpoint older code wrote.
+    lagrangian = make_learner(dataclasses.replace(PID, reward_mode="lagrangian"), tiny_checker)
+    runner = fast_jit(lagrangian.init)(key)
+    assert runner.pid is None
+    manager = checkpoint.make_manager(tmp_path / "lagrangian" / "checkpoints")
+    checkpoint.save(manager, 1, runner, tmp_path / "lagrangian", [])
+    assert "pid" not in manager.restore(1)
