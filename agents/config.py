@@ -50,6 +50,7 @@ MODES = {
     "none": Mode(),
     "lagrangian": Mode(COST_SOURCES, multiplier="gradient"),
     "pid_lagrangian": Mode(COST_SOURCES, multiplier="pid"),
+    "saute": Mode(COST_SOURCES, budget=True),
     "shield": Mode(("checker",), shield=True),
     "shield_monitor": Mode(("monitor",), shield=True),
 }
@@ -84,7 +85,12 @@ class PPOConfig:
     episode (Stooke, Achiam and Abbeel 2020; :func:`agents.losses.pid_update`: ``pid_kp``
     on its excess over ``cost_limit``, ``pid_ki`` on the excess summed and clipped at 0,
     ``pid_kd`` on its rise since the last update), so that it reacts at once to a cost that
-    appears and stops pushing as soon as the cost is back under the limit; ``shield``
+    appears and stops pushing as soon as the cost is back under the limit; ``saute`` PPO on
+    the env reward, with the episode's remaining safety budget in the observation (Sootla et
+    al. 2022: 1 at the episode's start, less the cost over ``cost_limit`` at each step;
+    :func:`agents.evaluation.spend`) and, once it is overspent, a training reward of
+    ``-saute_penalty`` on every step, so that the budget the policy observes tells it what the
+    rest of the episode is worth; ``shield``
     removes, before each step, the actions whose candidate next window the checker scores
     above ``checker_threshold`` (:mod:`agents.shield`), and ``shield_monitor`` those whose
     candidate step the ground-truth monitor flags. Both shields add ``penalty`` times the
@@ -181,6 +187,9 @@ class PPOConfig:
     pid_kp: float = 1.0
     pid_ki: float = 0.05
     pid_kd: float = 0.1
+    # Saute: the training reward of every step once the episode's budget is overspent is
+    # -saute_penalty (0: the reward is cut)
+    saute_penalty: float = 0.0
     novelty_bonus: float = 0.01  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
     # the bonus pays for (cell, carrying) pairs; False: for cells, whatever is carried
@@ -264,6 +273,7 @@ class PPOConfig:
             "pid_kp",
             "pid_ki",
             "pid_kd",
+            "saute_penalty",
             "novelty_bonus",
         )
         for name in nonnegative:

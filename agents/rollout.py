@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from agents import shield as shield_mod
 from agents.checker_carry import embed
 from agents.config import PPOConfig
-from agents.evaluation import cost_of, violation_of
+from agents.evaluation import cost_of, spend, violation_of
 from checker.protocol import CheckerProtocol
 from jaxgrid import language
 from jaxgrid.constants import EMPTY, FORWARD
@@ -48,6 +48,9 @@ class EnvCarry(struct.PyTreeNode):
     # float32 (E, M): the policy's memory of the episode so far (zeros at its start; M = 1,
     # a placeholder, for a memoryless policy)
     memory: jax.Array = None
+    # float32 (E,): Saute's remaining safety budget of the episode (1 at its start; None in
+    # the other modes)
+    budget: jax.Array | None = None
 
 
 class Transition(struct.PyTreeNode):
@@ -62,10 +65,11 @@ class Transition(struct.PyTreeNode):
     cost: jax.Array  # the constrained modes' cost, truncation bootstrap included
     done: jax.Array
     allowed: jax.Array | None = None  # bool (E, A): the shield's mask (shield modes only)
+    budget: jax.Array | None = None  # float32 (E,): the observed safety budget (saute only)
 
 
-# (image, direction, sentence row, memory) -> (logits, value, cost_value, memory), parameters
-# bound (agents.networks.apply_policy).
+# (image, direction, sentence row, memory[, budget]) -> (logits, value, cost_value, memory),
+# parameters bound (agents.networks.apply_policy).
 BoundPolicy = Callable[..., tuple[jax.Array, jax.Array, jax.Array, jax.Array]]
 
 
@@ -145,6 +149,7 @@ def env_step(
     penalty: jax.Array | float,
     novelty: jax.Array | float,
     threshold: jax.Array | float | None = None,
+    limit: jax.Array | float | None = None,
 ) -> tuple[EnvCarry, tuple[Transition, dict]]:
     """One rollout step of every env: act, step, shape the reward, bootstrap truncations.
 
@@ -159,15 +164,19 @@ def env_step(
     ``novelty_changes``, also for a cell's first change in it). With a ``shield``
     (:class:`agents.shield.Shield`) the action is sampled from the policy restricted to the
     allowed actions, and the mask is kept in the transition.
+    In ``saute`` the cost spends the episode's safety budget (:func:`agents.evaluation.spend`,
+    at cost limit ``limit``; None: ``cost_limit``), which the policy observes; once it is
+    overspent, every step's training reward is ``-saute_penalty``.
     Where an episode was cut by the time limit (not terminated), the reward and
     cost add ``gamma`` times the final observation's values, so GAE treats the step as
-    terminal without losing the future. ``threshold`` (None: ``checker_threshold``) may be a
-    traced per-agent value. Returns the next carry and (transition, statistics).
+    terminal without losing the future. ``threshold`` (None: ``checker_threshold``) and
+    ``limit`` may be traced per-agent values. Returns the next carry and (transition,
+    statistics).
     """
     c = config
     obs = carry.obs
     logits, value, cost_value, memory = policy(
-        obs["image"], obs["direction"], carry.sentence, carry.memory
+        obs["image"], obs["direction"], carry.sentence, carry.memory, carry.budget
     )
     # The checker's sentence codes: the table is encoded once (XLA hoists it out of the scan).
     codes = None if checker is None else checker.encode_language(table[:, :words])
@@ -203,7 +212,7 @@ def env_step(
         reward = reward - penalty * violation.astype(jnp.float32)
     elif c.reward_mode == "checker":
         reward = reward - penalty * signal
-    elif c.mode.cost_critic:
+    elif c.mode.cost_critic or c.mode.budget:
         cost = signal if c.cost_from == "checker" else cost_of(ts)
     if c.end_episode and c.reward_mode in ("shaped", "checker"):
         # The learner ends the episode where the signal fired: a terminal step, then a fresh
@@ -232,6 +241,10 @@ def env_step(
         new = jnp.minimum(new, left) + jnp.where(ts.terminated & (ts.reward > 0), left, 0.0)
     bonus = novelty * new  # novelty is 0 when the bonus is off
     reward = reward + bonus
+    budget = carry.budget
+    if c.mode.budget:  # the step's cost spends the budget; overspent, the reward is cut
+        budget = spend(budget, cost, c.cost_limit if limit is None else limit)
+        reward = jnp.where(budget < 0, -c.saute_penalty, reward)
     start = hit.at[:, env.width * env.height * 2 :].set(False)  # a new episode: no change yet
     visited = jnp.where(done[:, None], start, carry.visited | hit)
 
@@ -244,14 +257,14 @@ def env_step(
         return v, cv
 
     zeros = jnp.zeros_like(value)
-    rows = (final["image"], final["direction"], carry.sentence, memory)
+    rows = (final["image"], final["direction"], carry.sentence, memory, budget)
     v_final, cv_final = masked_map(truncated, final_values, rows, (zeros, zeros))
     trunc = truncated.astype(jnp.float32)
     transition = Transition(
         image=obs["image"], direction=obs["direction"], sentence=carry.sentence,
         action=action, log_prob=log_prob, value=value, cost_value=cost_value,
         reward=reward + c.gamma * trunc * v_final, cost=cost + c.gamma * trunc * cv_final,
-        done=done, allowed=allowed,
+        done=done, allowed=allowed, budget=carry.budget,
     )  # fmt: skip
     ep_return = carry.ep_return + ts.reward
     ep_length = carry.ep_length + 1
@@ -270,5 +283,6 @@ def env_step(
         state=states, obs=ts.observation, sentence=sentence, frames=frames, visited=visited,
         ep_return=jnp.where(done, 0.0, ep_return), ep_length=jnp.where(done, 0, ep_length),
         alarmed=(alarm > 0) & ~done, memory=jnp.where(done[:, None], 0.0, memory),
+        budget=None if budget is None else jnp.where(done, 1.0, budget),
     )  # fmt: skip
     return carry, (transition, stats)

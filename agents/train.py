@@ -115,9 +115,11 @@ class Learner(struct.PyTreeNode):
         steps that begin an episode (memory reset); the memory is recomputed through time,
         so gradients reach the steps that wrote it.
         """
+        budget = mb.get("budget")  # Saute's observed budget (None in the other modes)
         if not self.config.recurrent:
             memory = start_memory(self.network, mb["image"].shape[0])
-            return self.policy(params)(mb["image"], mb["direction"], mb["sentence"], memory)[:3]
+            policy = self.policy(params)
+            return policy(mb["image"], mb["direction"], mb["sentence"], memory, budget)[:3]
         # The observation features and the memory's input terms of every step at once (batched
         # passes); only the memory runs step by step, the heads again batched.
         lang_table = self.lang_table(params)
@@ -125,9 +127,11 @@ class Learner(struct.PyTreeNode):
         rows = flat(mb["sentence"])
         lang = table_rows(lang_table, rows)
         net = self.network
+        budget = None if budget is None else flat(budget)
         feats = net.apply(
-            params, flat(mb["image"]), flat(mb["direction"]), lang, method=ActorCritic.observe
-        ).reshape(mb["sentence"].shape + (-1,))
+            params, flat(mb["image"]), flat(mb["direction"]), lang, budget,
+            method=ActorCritic.observe,
+        ).reshape(mb["sentence"].shape + (-1,))  # fmt: skip
 
         inputs = net.apply(params, feats, method=ActorCritic.memory_inputs)
 
@@ -209,6 +213,7 @@ class Learner(struct.PyTreeNode):
             frames=frames, visited=rollout.config_visits(states, env, c),
             ep_return=zeros, ep_length=zeros.astype(jnp.int32), alarmed=zeros > 0,
             memory=start_memory(self.network, c.num_envs),
+            budget=zeros + 1.0 if c.mode.budget else None,
         )  # fmt: skip
         return RunnerState(
             params=params,
@@ -234,6 +239,7 @@ class Learner(struct.PyTreeNode):
             checker=self.checker, shield=self.shield_for(runner.hparams),
             penalty=self.penalty_of(runner), novelty=self.novelty_at(runner.update),
             threshold=self.hparam(runner, "checker_threshold"),
+            limit=self.hparam(runner, "cost_limit"),
         )  # fmt: skip
         keys = jax.random.split(key, self.config.num_steps)
         env, (traj, stats) = lax.scan(step, runner.env, keys)
@@ -245,7 +251,7 @@ class Learner(struct.PyTreeNode):
         lang_table = self.lang_table(runner.params) if lang_table is None else lang_table
         env, traj, stats = self.rollout(runner, key, lang_table)
         _, last_value, last_cost_value, _ = self.policy(runner.params, lang_table)(
-            env.obs["image"], env.obs["direction"], env.sentence, env.memory
+            env.obs["image"], env.obs["direction"], env.sentence, env.memory, env.budget
         )
         batch = self.training_batch(traj, last_value, last_cost_value, runner.env.memory)
         return env, traj, stats, batch
@@ -331,6 +337,8 @@ class Learner(struct.PyTreeNode):
         }  # fmt: skip
         if traj.allowed is not None:
             batch["allowed"] = traj.allowed
+        if traj.budget is not None:
+            batch["budget"] = traj.budget
         if c.mode.cost_critic:
             cadv, ctarget = gae(
                 traj.cost_value, traj.cost, traj.done, last_cost_value, c.gamma, c.gae_lambda
@@ -380,12 +388,14 @@ class Learner(struct.PyTreeNode):
         return (lagrange, pid), metrics
 
     # -- evaluation ---------------------------------------------------------------------
-    def act(self, params, obs, key, allowed=None, memory=None):
+    def act(self, params, obs, key, allowed=None, memory=None, budget=None):
         """Sample actions for a batch of observations (any sentence: the GRU runs on it),
         among the ``allowed`` ones (bool (B, A)) when given.
 
         A recurrent policy needs ``memory`` (B, M) (zeros at an episode's start,
-        :func:`agents.networks.start_memory`) and returns ``(actions, memory)``.
+        :func:`agents.networks.start_memory`) and returns ``(actions, memory)``. A Saute
+        policy reads ``budget`` (B,), the episode's remaining safety budget
+        (:func:`agents.evaluation.spend`; None: all of it, as at an episode's start).
         """
         if self.config.recurrent and memory is None:
             raise ValueError("a recurrent policy acts with its memory: act(..., memory=...)")
@@ -398,7 +408,7 @@ class Learner(struct.PyTreeNode):
         given = memory is not None
         memory = start_memory(self.network, batch) if memory is None else memory
         logits, _, _, memory = self.network.apply(
-            params, obs["image"], obs["direction"], lang, memory, method=ActorCritic.step
+            params, obs["image"], obs["direction"], lang, memory, budget, method=ActorCritic.step
         )
         if allowed is not None:
             logits = mask_logits(logits, allowed)
@@ -412,12 +422,18 @@ class Learner(struct.PyTreeNode):
         """Per-episode results of :func:`agents.evaluation.play_episodes` (fixed ``key`` =
         fixed episodes) on the raw env (or ``env``): in the shield modes with the shield on
         (as deployed; at the agent's swept threshold in ``hparams``, if any) unless
-        ``shielded`` is False (the policy alone). ``track``: as in ``play_episodes``."""
+        ``shielded`` is False (the policy alone). ``track``: as in ``play_episodes``. A Saute
+        policy's budget is spent by the monitor's cost, at the agent's ``cost_limit``
+        (evaluation runs no checker)."""
         env = self.env if env is None else env
         memory = start_memory(self.network, num_episodes) if self.config.recurrent else None
+        limit = None
+        if self.config.mode.budget:
+            limit = (hparams or {}).get("cost_limit", self.config.cost_limit)
         if self.shield is None or not shielded:
-            act = lambda o, k, *m: self.act(params, o, k, None, *m)  # noqa: E731
-            return play_episodes(env, act, key, num_episodes, memory=memory, track=track)
+            act = lambda o, k, *m, **b: self.act(params, o, k, None, *m, **b)  # noqa: E731
+            return play_episodes(env, act, key, num_episodes, memory=memory, track=track,
+                                 cost_limit=limit)  # fmt: skip
         shield = self.shield_for(hparams or {}).replace(env=env)
         act = lambda o, k, allowed, *m: self.act(params, o, k, allowed, *m)  # noqa: E731
         return play_episodes(env, act, key, num_episodes, shield=shield, memory=memory,
@@ -473,6 +489,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
             recurrent=config.recurrent,
             film_codes=config.film_codes,
             memory_skip=config.memory_skip,
+            budget_input=config.mode.budget,
         ),
         optimizer=optimizer,
         checker=checker,

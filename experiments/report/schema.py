@@ -57,6 +57,7 @@ MODE_LABELS: dict[str, str] = {
     "none": "unconstrained",
     "lagrangian": "PPO-Lagrangian",
     "pid_lagrangian": "PID Lagrangian",
+    "saute": "Saute",
     "shield": "checker shield",
     "shield_monitor": "monitor shield",
 }

@@ -86,7 +86,7 @@ def test_bad_env_and_checker_fail_before_compiling():
     """No XLA compilation at all (counted through ``jax.monitoring``) before the error."""
     wide = TrainedChecker(params={}, config=dataclasses.replace(CHECKER_CONFIG, view_size=7))
     with count_compiles() as compiled:
-        for mode in ("checker", "lagrangian", "pid_lagrangian"):
+        for mode in ("checker", "lagrangian", "pid_lagrangian", "saute"):
             config = dataclasses.replace(TINY, reward_mode=mode)
             for build in (make_learner, make_train):
                 with pytest.raises(ValueError, match="reward_mode='" + mode):

@@ -1,7 +1,9 @@
 """The constrained-RL baselines in the learner: each trains through the one rollout, loss and
 update, and shows the behaviour that defines it on a tiny run: the PID Lagrangian's
-multiplier follows its controller. A mode's own state goes through checkpoints, and stays
-out of the other modes' (theirs hold what they held before it existed)."""
+multiplier follows its controller; Saute's policy observes the episode's remaining budget,
+which each cost spends, and its reward is cut once the budget is overspent. A mode's own
+state goes through checkpoints, and stays out of the other modes' (theirs hold what they
+held before it existed)."""
 
 from __future__ import annotations
 
@@ -23,6 +25,14 @@ from agents.train import make_learner, make_train
 PID = dataclasses.replace(
     TINY, reward_mode="pid_lagrangian", checker_threshold=1e-6, cost_limit=0.25, pid_kp=0.5,
     pid_ki=0.1, pid_kd=0.2, env_kwargs=(("max_steps", 5),),
+)  # fmt: skip
+
+
+# Every step alarms (cost 1) against a limit of 4: the budget falls by a quarter per step
+# (exactly, in floats), and the fifth step of an episode (6 steps) overspends it.
+SAUTE = dataclasses.replace(
+    TINY, reward_mode="saute", checker_threshold=1e-6, cost_limit=4.0, saute_penalty=0.5,
+    env_kwargs=(("max_steps", 6),),
 )  # fmt: skip
 
 
@@ -68,4 +78,50 @@ def test_a_modes_own_state_goes_through_checkpoints_and_only_there(tmp_path, tin
     assert runner.pid is None
     manager = checkpoint.make_manager(tmp_path / "lagrangian" / "checkpoints")
     checkpoint.save(manager, 1, runner, tmp_path / "lagrangian", [])
-    assert "pid" not in manager.restore(1)
+    saved = manager.restore(1)
+    assert "pid" not in saved and "budget" not in saved["env"]
+
+
+@pytest.fixture(scope="module")
+def saute_run(tiny_checker):
+    """A rollout from a fresh Saute learner, and a chunk of training from the same start."""
+    learner = make_learner(SAUTE, tiny_checker)
+    runner = fast_jit(learner.init)(jax.random.PRNGKey(0))
+
+    @fast_jit
+    def go(runner):
+        _, traj, _ = learner.rollout(runner, runner.key)
+        return traj, learner.chunk(runner)
+
+    return learner, runner, jax.device_get(go(runner))
+
+
+def test_saute_observes_its_budget_which_costs_spend_and_cuts_the_reward(saute_run):
+    learner, runner, (traj, _) = saute_run
+    done = np.asarray(traj.done)
+    budget, seen, cut = np.ones(done.shape[1], np.float32), [], []
+    for t in range(done.shape[0]):  # 1 at an episode's start, a quarter less per step
+        seen.append(budget)
+        after = np.clip(budget - 0.25, -1, 1)
+        cut.append(after < 0)
+        budget = np.where(done[t], 1.0, after).astype(np.float32)
+    np.testing.assert_array_equal(traj.budget, np.stack(seen))
+    cut = np.stack(cut)
+    inside = ~done  # truncated steps add the final observation's value
+    assert (cut & inside).any() and (~cut & inside).any()
+    np.testing.assert_array_equal(traj.reward[cut & inside], -SAUTE.saute_penalty)
+    assert np.all(traj.reward[~cut & inside] >= 0)  # the env reward, uncut
+    # The policy reads the budget: an overspent one changes its action probabilities.
+    obs, env = runner.env.obs, runner.env
+    policy = learner.policy(runner.params)
+    full = policy(obs["image"], obs["direction"], env.sentence, env.memory, env.budget)[0]
+    spent = policy(obs["image"], obs["direction"], env.sentence, env.memory, -env.budget)[0]
+    assert np.all(np.asarray(env.budget) == 1) and not np.allclose(full, spent)
+
+
+def test_saute_trains_and_evaluates_with_its_budget(saute_run):
+    _, _, (_, (runner, metrics)) = saute_run
+    assert int(runner.update) == SAUTE.eval_every
+    assert np.all(np.isfinite(metrics["train"]["loss"]))
+    np.testing.assert_allclose(metrics["train"]["cost_rate"], 1.0)
+    assert 0 <= float(metrics["eval"]["success_rate"]) <= 1

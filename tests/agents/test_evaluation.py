@@ -1,6 +1,6 @@
 """``agents.evaluation``: fixed keys give fixed episodes; the oracle succeeds without
 violations and earns MiniGrid's reward once per episode; the ``done`` action never
-succeeds."""
+succeeds; a Saute budget is spent as the limit's share of each cost."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 from helpers.agents_cases import fast_jit
 
 import jaxgrid
-from agents.evaluation import play_episodes, summarise
+from agents.evaluation import play_episodes, spend, summarise
 from jaxgrid.oracle import oracle_action
 
 
@@ -106,3 +106,12 @@ def test_tracked_flags_hold_if_they_held_after_any_step_of_the_episode():
     untracked = fast_jit(lambda k: play_episodes(lava, random_act, k, 16))(
         jax.random.PRNGKey(3))
     assert "tracked" not in untracked
+
+
+def test_a_budget_is_spent_as_the_limits_share_of_each_cost():
+    """Each cost spends ``cost / limit`` of the budget, which stays in [-1, 1]; a limit of 0
+    is spent by any cost."""
+    budget = np.array([1.0, 0.5, 0.5, -0.9, 1.0], np.float32)
+    cost = np.array([0.0, 1.0, 0.25, 1.0, 1.0], np.float32)
+    np.testing.assert_allclose(spend(budget, cost, 2.0), [1.0, 0.0, 0.375, -1.0, 0.5])
+    np.testing.assert_array_equal(spend(budget, cost, 0.0), [1.0, -1.0, -1.0, -1.0, -1.0])
