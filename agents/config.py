@@ -51,6 +51,7 @@ MODES = {
     "lagrangian": Mode(COST_SOURCES, multiplier="gradient"),
     "pid_lagrangian": Mode(COST_SOURCES, multiplier="pid"),
     "saute": Mode(COST_SOURCES, budget=True),
+    "focops": Mode(COST_SOURCES, multiplier="gradient", policy_update="focops"),
     "shield": Mode(("checker",), shield=True),
     "shield_monitor": Mode(("monitor",), shield=True),
 }
@@ -90,7 +91,11 @@ class PPOConfig:
     al. 2022: 1 at the episode's start, less the cost over ``cost_limit`` at each step;
     :func:`agents.evaluation.spend`) and, once it is overspent, a training reward of
     ``-saute_penalty`` on every step, so that the budget the policy observes tells it what the
-    rest of the episode is worth; ``shield``
+    rest of the episode is worth; ``focops`` FOCOPS (Zhang, Vuong and Ross 2020;
+    :func:`agents.losses.focops_loss`): the clipped ratio gives way to a first-order loss that
+    pulls the policy towards the old one reweighted by ``exp((A - nu * A_cost) / focops_lam)``
+    and drops the samples whose KL to the old policy exceeds ``focops_max_kl``, its multiplier
+    ``nu`` moving as the Lagrangian's, capped at ``focops_nu_max``; ``shield``
     removes, before each step, the actions whose candidate next window the checker scores
     above ``checker_threshold`` (:mod:`agents.shield`), and ``shield_monitor`` those whose
     candidate step the ground-truth monitor flags. Both shields add ``penalty`` times the
@@ -190,6 +195,11 @@ class PPOConfig:
     # Saute: the training reward of every step once the episode's budget is overspent is
     # -saute_penalty (0: the reward is cut)
     saute_penalty: float = 0.0
+    # FOCOPS: the temperature of its reweighted policy, the KL above which a sample is dropped,
+    # and the cap of its multiplier (which moves as the Lagrangian's, by lagrangian_lr)
+    focops_lam: float = 1.5
+    focops_max_kl: float = 0.02
+    focops_nu_max: float = 2.0
     novelty_bonus: float = 0.01  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
     # the bonus pays for (cell, carrying) pairs; False: for cells, whatever is carried
@@ -244,7 +254,7 @@ class PPOConfig:
             value = getattr(self, f.name)
             if isinstance(value, float | np.floating) and not math.isfinite(value):
                 raise ValueError(f"PPOConfig.{f.name} must be finite, got {value!r}")
-        for name in ("lr", "clip_eps", "max_grad_norm"):
+        for name in ("lr", "clip_eps", "max_grad_norm", "focops_lam", "focops_max_kl"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"PPOConfig.{name} must be > 0, got {getattr(self, name)!r}")
         for name in ("gamma", "gae_lambda", "penalty_start", "penalty_warmup", "penalty_gate"):
@@ -274,6 +284,7 @@ class PPOConfig:
             "pid_ki",
             "pid_kd",
             "saute_penalty",
+            "focops_nu_max",
             "novelty_bonus",
         )
         for name in nonnegative:

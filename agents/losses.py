@@ -87,12 +87,16 @@ def ppo_loss(
     entropy = -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1).mean()
 
     adv = batch["advantage"]
-    if c.mode.multiplier is not None:
+    if c.mode.multiplier is not None and c.mode.policy_update == "ppo":
         adv = (adv - lagrange * batch["cost_advantage"]) / (1.0 + lagrange)
     adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     ratio = jnp.exp(log_prob - batch["log_prob"])
-    clipped = jnp.clip(ratio, 1 - c.clip_eps, 1 + c.clip_eps)
-    actor_loss = -jnp.minimum(ratio * adv, clipped * adv).mean()
+    stats = {}
+    if c.mode.policy_update == "focops":
+        actor_loss, stats["focops_kept"] = focops_loss(log_probs, ratio, adv, batch, lagrange, c)
+    else:
+        clipped = jnp.clip(ratio, 1 - c.clip_eps, 1 + c.clip_eps)
+        actor_loss = -jnp.minimum(ratio * adv, clipped * adv).mean()
 
     def value_loss(pred, old, target):
         pred_clipped = old + jnp.clip(pred - old, -c.clip_eps, c.clip_eps)
@@ -109,8 +113,28 @@ def ppo_loss(
     return total, {
         "loss": total, "actor_loss": actor_loss, "value_loss": v_loss,
         "cost_value_loss": cv_loss, "entropy": entropy, "approx_kl": approx_kl,
-        "blocked_prob": blocked,
+        "blocked_prob": blocked, **stats,
     }  # fmt: skip
+
+
+def focops_loss(log_probs, ratio, adv, batch, nu, config) -> tuple[jax.Array, jax.Array]:
+    """FOCOPS's first-order policy loss (Zhang, Vuong and Ross 2020) and the share of samples
+    it keeps: the mean over samples of ``(KL - ratio * (adv - nu * cost_adv) / focops_lam)``
+    where the sample's ``KL(policy || old policy)`` is at most ``focops_max_kl``, 0 elsewhere.
+
+    Its minimiser is the old policy reweighted by ``exp((A - nu * A_cost) / focops_lam)``, the
+    solution of the constrained problem in the space of policies, to which the KL term pulls
+    the policy; a sample whose KL exceeds the bound gives no gradient, so that no state moves
+    far in one update. ``log_probs`` (B, A) are the policy's, ``batch["logits"]`` the old
+    policy's; ``adv`` is normalised, the cost advantage only centred (a batch with no cost
+    must not be blown up to unit scale).
+    """
+    old = jax.nn.log_softmax(batch["logits"])
+    kl = jnp.sum(jnp.exp(log_probs) * (log_probs - old), axis=-1)
+    keep = lax.stop_gradient(kl <= config.focops_max_kl).astype(jnp.float32)
+    cost_adv = batch["cost_advantage"] - batch["cost_advantage"].mean()
+    loss = kl - ratio * (adv - nu * cost_adv) / config.focops_lam
+    return jnp.mean(loss * keep), keep.mean()
 
 
 class PIDState(struct.PyTreeNode):

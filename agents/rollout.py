@@ -66,6 +66,8 @@ class Transition(struct.PyTreeNode):
     done: jax.Array
     allowed: jax.Array | None = None  # bool (E, A): the shield's mask (shield modes only)
     budget: jax.Array | None = None  # float32 (E,): the observed safety budget (saute only)
+    # float32 (E, A): the acting policy's logits, where the update bounds the KL to it
+    logits: jax.Array | None = None
 
 
 # (image, direction, sentence row, memory[, budget]) -> (logits, value, cost_value, memory),
@@ -265,6 +267,7 @@ def env_step(
         action=action, log_prob=log_prob, value=value, cost_value=cost_value,
         reward=reward + c.gamma * trunc * v_final, cost=cost + c.gamma * trunc * cv_final,
         done=done, allowed=allowed, budget=carry.budget,
+        logits=None if c.mode.policy_update == "ppo" else logits,
     )  # fmt: skip
     ep_return = carry.ep_return + ts.reward
     ep_length = carry.ep_length + 1

@@ -339,6 +339,8 @@ class Learner(struct.PyTreeNode):
             batch["allowed"] = traj.allowed
         if traj.budget is not None:
             batch["budget"] = traj.budget
+        if traj.logits is not None:
+            batch["logits"] = traj.logits
         if c.mode.cost_critic:
             cadv, ctarget = gae(
                 traj.cost_value, traj.cost, traj.done, last_cost_value, c.gamma, c.gae_lambda
@@ -365,6 +367,8 @@ class Learner(struct.PyTreeNode):
         if c.mode.multiplier == "gradient":
             step = c.lagrangian_lr * (episode_cost - limit)
             lagrange = jnp.where(active, jnp.maximum(0.0, lagrange + step), lagrange)
+            if c.mode.policy_update == "focops":
+                lagrange = jnp.minimum(lagrange, c.focops_nu_max)
         elif c.mode.multiplier == "pid":
             # The first update has no previous cost: no derivative. The controller follows
             # the cost from the start, and moves the multiplier once the constraint is on.

@@ -47,6 +47,11 @@ from checker.model import TrainedChecker
         (dict(conv_channels=16), "conv_channels"),
         (dict(env_kwargs=(("max_steps", [3]),)), "env_kwargs"),
         (dict(cost_limit=-0.1), "cost_limit"),
+        (dict(pid_kp=-1.0), "pid_kp"),
+        (dict(saute_penalty=-1.0), "saute_penalty"),
+        (dict(focops_lam=0.0), "focops_lam"),
+        (dict(focops_max_kl=0.0), "focops_max_kl"),
+        (dict(focops_nu_max=-1.0), "focops_nu_max"),
         (dict(reward_mode="lagrangian", cost_source="oracle"), "cost_source"),
         # a cost source the mode cannot use: its own is fixed, or it has no cost
         (dict(reward_mode="shield_monitor", cost_source="checker"), "cost_source='checker'"),
@@ -86,7 +91,7 @@ def test_bad_env_and_checker_fail_before_compiling():
     """No XLA compilation at all (counted through ``jax.monitoring``) before the error."""
     wide = TrainedChecker(params={}, config=dataclasses.replace(CHECKER_CONFIG, view_size=7))
     with count_compiles() as compiled:
-        for mode in ("checker", "lagrangian", "pid_lagrangian", "saute"):
+        for mode in ("checker", "lagrangian", "pid_lagrangian", "saute", "focops"):
             config = dataclasses.replace(TINY, reward_mode=mode)
             for build in (make_learner, make_train):
                 with pytest.raises(ValueError, match="reward_mode='" + mode):

@@ -1,7 +1,9 @@
 """The constrained-RL baselines in the learner: each trains through the one rollout, loss and
 update, and shows the behaviour that defines it on a tiny run: the PID Lagrangian's
 multiplier follows its controller; Saute's policy observes the episode's remaining budget,
-which each cost spends, and its reward is cut once the budget is overspent. A mode's own
+which each cost spends, and its reward is cut once the budget is overspent; FOCOPS's
+multiplier moves by its gradient steps up to its cap, and its loss keeps the samples within
+its KL bound. A mode's own
 state goes through checkpoints, and stays out of the other modes' (theirs hold what they
 held before it existed)."""
 
@@ -16,6 +18,7 @@ import pytest
 from helpers.agents_cases import TINY, fast_jit, leaves
 
 from agents import checkpoint
+from agents.config import PPOConfig
 from agents.losses import PIDState
 from agents.train import make_learner, make_train
 
@@ -33,6 +36,14 @@ PID = dataclasses.replace(
 SAUTE = dataclasses.replace(
     TINY, reward_mode="saute", checker_threshold=1e-6, cost_limit=4.0, saute_penalty=0.5,
     env_kwargs=(("max_steps", 6),),
+)  # fmt: skip
+
+
+# The same huge cost: FOCOPS's multiplier climbs by lagrangian_lr x (cost - limit) and stops
+# at focops_nu_max within the run.
+FOCOPS = dataclasses.replace(
+    PID, reward_mode="focops", lagrangian_lr=0.03, focops_nu_max=0.3, pid_kp=PPOConfig.pid_kp,
+    pid_ki=PPOConfig.pid_ki, pid_kd=PPOConfig.pid_kd,
 )  # fmt: skip
 
 
@@ -125,3 +136,18 @@ def test_saute_trains_and_evaluates_with_its_budget(saute_run):
     assert np.all(np.isfinite(metrics["train"]["loss"]))
     np.testing.assert_allclose(metrics["train"]["cost_rate"], 1.0)
     assert 0 <= float(metrics["eval"]["success_rate"]) <= 1
+
+
+def test_focops_multiplier_climbs_to_its_cap_and_its_loss_keeps_close_samples(tiny_checker):
+    out = jax.device_get(fast_jit(make_train(FOCOPS, tiny_checker))(jax.random.PRNGKey(0)))
+    t = out["train"]
+    cost, nu = t["episode_cost"].ravel(), t["lagrange"].ravel()
+    expected, previous = [], FOCOPS.lagrangian_init
+    for c in cost:
+        step = FOCOPS.lagrangian_lr * (c - FOCOPS.cost_limit)
+        previous = min(FOCOPS.focops_nu_max, max(0.0, previous + step))
+        expected.append(previous)
+    np.testing.assert_allclose(nu, expected, rtol=1e-5)
+    assert nu[0] < FOCOPS.focops_nu_max == nu[-1]
+    kept = t["focops_kept"]
+    assert np.all((kept > 0.5) & (kept <= 1)) and np.all(np.isfinite(t["loss"]))

@@ -1,15 +1,19 @@
 """``agents.losses``: GAE against a numpy loop, the minibatch shuffle (a permutation set by its
-key, spreading every item evenly over minibatches), and the PID Lagrangian's multiplier
-answering a step of the cost."""
+key, spreading every item evenly over minibatches), the PID Lagrangian's multiplier
+answering a step of the cost, and FOCOPS's update bounded in KL."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers.agents_cases import fast_jit
 
-from agents.losses import PIDState, gae, pid_update, shuffle
+from agents.config import PPOConfig
+from agents.losses import PIDState, gae, pid_update, ppo_loss, shuffle
 
 
 def gae_reference(values, rewards, dones, last_value, gamma, lam):
@@ -93,3 +97,58 @@ def test_pid_multiplier_answers_a_cost_step():
     assert np.all(integrals[18:21] == 0) and np.all(integrals >= 0)
     # The second step is answered as the first, bit for bit.
     np.testing.assert_array_equal(lams[21:], lams[3:7])
+
+
+# A tabular policy: sample i is in state ``image[i]``, whose logits are row ``image[i]`` of
+# the parameters; every (state, action) pair once, from a uniform old policy.
+STATES, ACTIONS = 4, 3
+
+
+def tabular(params, image, direction, sentence):
+    zeros = jnp.zeros(image.shape)
+    return params[image], zeros, zeros
+
+
+def tabular_batch(advantage, cost_advantage) -> dict:
+    n = STATES * ACTIONS
+    zeros = jnp.zeros(n)
+    return {
+        "image": jnp.repeat(jnp.arange(STATES), ACTIONS), "direction": zeros.astype(jnp.int32),
+        "sentence": zeros.astype(jnp.int32), "action": jnp.tile(jnp.arange(ACTIONS), STATES),
+        "log_prob": jnp.full(n, -np.log(ACTIONS), jnp.float32), "value": zeros,
+        "target": zeros, "cost_value": zeros, "cost_target": zeros,
+        "advantage": jnp.tile(jnp.asarray(advantage, jnp.float32), STATES),
+        "cost_advantage": jnp.tile(jnp.asarray(cost_advantage, jnp.float32), STATES),
+        "logits": jnp.zeros((n, ACTIONS)),
+    }  # fmt: skip
+
+
+def kl_to_uniform(params):
+    log_probs = jax.nn.log_softmax(params)
+    return jnp.sum(jnp.exp(log_probs) * (log_probs + np.log(ACTIONS)), axis=-1)
+
+
+def test_focops_update_stays_within_its_kl_bound():
+    """A state whose KL to the old policy exceeds ``focops_max_kl`` gives no gradient, so
+    that descending FOCOPS's loss stops each state near the bound (one step's overshoot),
+    where without the bound it goes on to the reweighted policy, ten times as far."""
+    batch = tabular_batch([3.0, -1.0, -2.0], [0.0, 0.0, 0.0])
+    focops = dataclasses.replace(PPOConfig(), reward_mode="focops", ent_coef=0.0)
+    grad = jax.grad(lambda p, c: ppo_loss(tabular, p, batch, 0.0, c)[0])
+    moved = jnp.zeros((STATES, ACTIONS)).at[0].set(jnp.array([2.0, 0.0, 0.0]))
+    assert kl_to_uniform(moved)[0] > focops.focops_max_kl
+    g = grad(moved, focops)
+    assert np.all(g[0] == 0) and np.all(np.abs(g[1:]) > 0)
+    kls = {}
+    for bound in (focops.focops_max_kl, 1e6):
+        config = dataclasses.replace(focops, focops_max_kl=bound)
+
+        @fast_jit
+        def descend(params, config=config):
+            step = lambda p, _: (p - grad(p, config), None)  # noqa: E731
+            return jax.lax.scan(step, params, None, 400)[0]
+
+        kls[bound] = np.asarray(kl_to_uniform(descend(jnp.zeros((STATES, ACTIONS)))))
+    bounded, free = kls[focops.focops_max_kl], kls[1e6]
+    assert np.all(bounded > focops.focops_max_kl * 0.9)  # it did move up to the bound
+    assert np.all(bounded < focops.focops_max_kl * 1.25) and np.all(free > 10 * bounded)
