@@ -51,6 +51,7 @@ MODES = {
     "lagrangian": Mode(COST_SOURCES, multiplier="gradient"),
     "pid_lagrangian": Mode(COST_SOURCES, multiplier="pid"),
     "saute": Mode(COST_SOURCES, budget=True),
+    "cpo": Mode(COST_SOURCES, policy_update="cpo"),
     "focops": Mode(COST_SOURCES, multiplier="gradient", policy_update="focops"),
     "shield": Mode(("checker",), shield=True),
     "shield_monitor": Mode(("monitor",), shield=True),
@@ -95,7 +96,11 @@ class PPOConfig:
     :func:`agents.losses.focops_loss`): the clipped ratio gives way to a first-order loss that
     pulls the policy towards the old one reweighted by ``exp((A - nu * A_cost) / focops_lam)``
     and drops the samples whose KL to the old policy exceeds ``focops_max_kl``, its multiplier
-    ``nu`` moving as the Lagrangian's, capped at ``focops_nu_max``; ``shield``
+    ``nu`` moving as the Lagrangian's, capped at ``focops_nu_max``; ``cpo`` CPO (Achiam et
+    al. 2017; :func:`agents.losses.cpo_step`): each update's policy step is the solution of
+    the problem linearised at the acting policy, within the trust region ``cpo_max_kl`` and
+    under the cost constraint (a recovery step that only lowers the cost where it is
+    infeasible), then PPO's epochs fit the value heads alone; ``shield``
     removes, before each step, the actions whose candidate next window the checker scores
     above ``checker_threshold`` (:mod:`agents.shield`), and ``shield_monitor`` those whose
     candidate step the ground-truth monitor flags. Both shields add ``penalty`` times the
@@ -200,6 +205,11 @@ class PPOConfig:
     focops_lam: float = 1.5
     focops_max_kl: float = 0.02
     focops_nu_max: float = 2.0
+    # CPO: the trust region (mean KL to the acting policy), conjugate-gradient steps, and the
+    # damping added to the Fisher matrix
+    cpo_max_kl: float = 0.01
+    cpo_cg_iters: int = 10
+    cpo_damping: float = 0.1
     novelty_bonus: float = 0.01  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
     # the bonus pays for (cell, carrying) pairs; False: for cells, whatever is carried
@@ -239,7 +249,7 @@ class PPOConfig:
         object.__setattr__(self, "env_kwargs", pairs)
         positive = (
             "num_envs", "num_steps", "total_timesteps", "update_epochs", "num_minibatches",
-            "eval_every", "eval_episodes",
+            "eval_every", "eval_episodes", "cpo_cg_iters",
         )  # fmt: skip
         for name in positive:
             value = getattr(self, name)
@@ -254,7 +264,8 @@ class PPOConfig:
             value = getattr(self, f.name)
             if isinstance(value, float | np.floating) and not math.isfinite(value):
                 raise ValueError(f"PPOConfig.{f.name} must be finite, got {value!r}")
-        for name in ("lr", "clip_eps", "max_grad_norm", "focops_lam", "focops_max_kl"):
+        for name in ("lr", "clip_eps", "max_grad_norm", "focops_lam", "focops_max_kl",
+                     "cpo_max_kl", "cpo_damping"):  # fmt: skip
             if not getattr(self, name) > 0:
                 raise ValueError(f"PPOConfig.{name} must be > 0, got {getattr(self, name)!r}")
         for name in ("gamma", "gae_lambda", "penalty_start", "penalty_warmup", "penalty_gate"):

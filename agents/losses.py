@@ -12,6 +12,7 @@ import flax.struct as struct
 import jax
 import jax.numpy as jnp
 from jax import lax
+from jax.flatten_util import ravel_pytree
 
 from agents.config import PPOConfig
 from agents.shield import blocked_mass, mask_logits
@@ -135,6 +136,121 @@ def focops_loss(log_probs, ratio, adv, batch, nu, config) -> tuple[jax.Array, ja
     cost_adv = batch["cost_advantage"] - batch["cost_advantage"].mean()
     loss = kl - ratio * (adv - nu * cost_adv) / config.focops_lam
     return jnp.mean(loss * keep), keep.mean()
+
+
+# CPO's backtracking line search: this many step sizes, each this share of the one before.
+LINE_SEARCH_STEPS = 10
+LINE_SEARCH_DECAY = 0.8
+_EPS = 1e-8
+
+
+def conjugate_gradient(matvec: Callable, rhs: jax.Array, iters: int) -> jax.Array:
+    """``x`` with ``matvec(x) ~ rhs`` after ``iters`` conjugate-gradient steps (``matvec`` a
+    symmetric positive-definite product), from 0; it stops improving once the residual
+    vanishes. Vmappable over ``rhs``."""
+
+    def body(_, s):
+        x, r, p, rr = s
+        ap = matvec(p)
+        alpha = rr / jnp.maximum(p @ ap, _EPS * _EPS)
+        x_new, r_new = x + alpha * p, r - alpha * ap
+        rr_new = r_new @ r_new
+        new = (x_new, r_new, r_new + rr_new / jnp.maximum(rr, _EPS * _EPS) * p, rr_new)
+        return jax.tree.map(lambda a, b: jnp.where(rr > 1e-20, a, b), new, s)
+
+    zeros = jnp.zeros_like(rhs)
+    return lax.fori_loop(0, iters, body, (zeros, rhs, rhs, rhs @ rhs))[0]
+
+
+def cpo_step(
+    logits_of: Callable, params, batch: dict[str, jax.Array], excess, config: PPOConfig
+) -> tuple[object, dict[str, jax.Array]]:
+    """One CPO policy update (Achiam, Held, Tamar and Abbeel 2017) from the acting policy.
+
+    ``logits_of(params) -> (B, A)`` are the policy's logits of the batch's samples; ``batch``
+    holds (B,) ``action``, ``log_prob`` and (B, A) ``logits`` of the acting policy, and
+    ``advantage`` (normalised here) and ``cost_advantage`` (centred: its scale is the
+    cost's); ``excess`` is the constraint's value on the surrogates' per-step scale (the
+    learner's: the cost per episode minus its limit, over the mean episode length; > 0: the
+    policy is infeasible). With ``g`` and ``b`` the gradients of the reward and cost surrogates and
+    ``F`` the Fisher matrix, the Hessian of the mean ``KL(old || policy)`` (its products are
+    a ``jvp`` of its gradient, plus ``cpo_damping``), conjugate gradient gives ``F^-1 g`` and
+    ``F^-1 b`` in ``cpo_cg_iters`` steps and the linearised problem (maximise ``g.x``
+    subject to ``x.F.x / 2 <= cpo_max_kl`` and ``excess + b.x <= 0``) is solved in closed
+    form through its dual. Where no step satisfies both (``case`` 0) the step is the
+    recovery one, ``-sqrt(2 cpo_max_kl / b.F^-1.b) F^-1 b``: a pure decrease of the cost. A
+    backtracking line search (:data:`LINE_SEARCH_STEPS` sizes, each
+    :data:`LINE_SEARCH_DECAY` of the one before) takes the first that keeps the measured
+    KL within ``cpo_max_kl``, does not raise the cost surrogate by more than the slack
+    ``max(-excess, 0)`` and, when the problem was feasible (``case`` >= 2), does not lower
+    the reward surrogate; with none, the policy stays. Returns ``(params, statistics)``:
+    ``cpo_case`` (4: no cost gradient, 3: the trust region is feasible, 2 and 1: the
+    constraint binds, 0: recovery), ``cpo_step`` (the step size taken, 0: none), ``cpo_kl``.
+    """
+    c = config
+    flat, unravel = ravel_pytree(params)
+    old = jax.nn.log_softmax(batch["logits"])
+    adv = batch["advantage"]
+    adv = (adv - adv.mean()) / (adv.std() + _EPS)
+    cost_adv = batch["cost_advantage"] - batch["cost_advantage"].mean()
+
+    def surrogates(x):
+        log_probs = jax.nn.log_softmax(logits_of(unravel(x)))
+        log_prob = jnp.take_along_axis(log_probs, batch["action"][:, None], axis=-1)[:, 0]
+        ratio = jnp.exp(log_prob - batch["log_prob"])
+        kl = jnp.sum(jnp.exp(old) * (old - log_probs), axis=-1).mean()
+        return jnp.stack([(ratio * adv).mean(), (ratio * cost_adv).mean()]), kl
+
+    before, pullback = jax.vjp(lambda x: surrogates(x)[0], flat)
+    g, b = jax.vmap(pullback)(jnp.eye(2, dtype=flat.dtype))[0]
+    _, fisher = jax.linearize(jax.grad(lambda x: surrogates(x)[1]), flat)
+    fvp = lambda v: fisher(v) + c.cpo_damping * v  # noqa: E731
+    x, p = jax.vmap(lambda v: conjugate_gradient(fvp, v, c.cpo_cg_iters))(jnp.stack([g, b]))
+    delta, cost = c.cpo_max_kl, excess
+    # The paper's dual is written for minimising a loss, whose gradient is -g: hence -g.p.
+    q, r, s = x @ fvp(x), -(g @ p), b @ p
+    big_a, big_b = q - r**2 / (s + _EPS), 2 * delta - cost**2 / (s + _EPS)
+    case = jnp.where(
+        (b @ b <= _EPS) & (cost < 0), 4,
+        jnp.where(cost < 0, jnp.where(big_b < 0, 3, 2), jnp.where(big_b >= 0, 1, 0)),
+    )  # fmt: skip
+    # The dual of the linearised problem where the constraint binds (cases 1 and 2): the
+    # multiplier lam of the trust region on either side of r / cost, where nu > 0 or not
+    # (projected onto an empty side, its lower end: that side then loses).
+    bound = r / (cost + _EPS)
+    low_a, high_a = jnp.where(cost < 0, 0.0, bound), jnp.where(cost < 0, bound, jnp.inf)
+    low_b, high_b = jnp.where(cost < 0, bound, 0.0), jnp.where(cost < 0, jnp.inf, bound)
+    project = lambda v, low, high: jnp.maximum(low, jnp.minimum(high, v))  # noqa: E731
+    lam_a = project(jnp.sqrt(jnp.maximum(big_a / big_b, 0.0)), low_a, high_a)
+    lam_b = project(jnp.sqrt(q / (2 * delta)), low_b, high_b)
+    f_a = -0.5 * (big_a / (lam_a + _EPS) + big_b * lam_a) - r * cost / (s + _EPS)
+    f_b = -0.5 * (q / (lam_b + _EPS) + 2 * delta * lam_b)
+    lam = jnp.where(f_a >= f_b, lam_a, lam_b)
+    nu = jnp.maximum(lam * cost - r, 0.0) / (s + _EPS)
+    step = jnp.where(
+        case >= 3, jnp.sqrt(2 * delta / (q + _EPS)) * x,
+        jnp.where(case >= 1, (x - nu * p) / (lam + _EPS), -jnp.sqrt(2 * delta / (s + _EPS)) * p),
+    )  # fmt: skip
+
+    def accepts(size):
+        (gain, rise), kl = surrogates(flat + size * step)
+        gain, rise = gain - before[0], rise - before[1]
+        finite = jnp.isfinite(gain) & jnp.isfinite(rise) & jnp.isfinite(kl)
+        ok = finite & (kl <= delta) & (rise <= jnp.maximum(-cost, 0.0))
+        return ok & ((gain >= 0) | (case <= 1)), kl
+
+    def search(state):
+        k, _, _ = state
+        size = LINE_SEARCH_DECAY ** k.astype(flat.dtype)
+        ok, kl = accepts(size)
+        return k + 1, jnp.where(ok, size, 0.0), jnp.where(ok, kl, 0.0)
+
+    _, size, kl = lax.while_loop(
+        lambda s: (s[0] < LINE_SEARCH_STEPS) & (s[1] == 0), search,
+        (jnp.int32(0), jnp.zeros((), flat.dtype), jnp.zeros((), flat.dtype)),
+    )  # fmt: skip
+    stats = {"cpo_case": case.astype(jnp.float32), "cpo_step": size, "cpo_kl": kl}
+    return unravel(flat + size * step), stats
 
 
 class PIDState(struct.PyTreeNode):

@@ -317,6 +317,21 @@ def table_rows(lang_table: jax.Array, sentence: jax.Array) -> jax.Array:
     return jax.nn.one_hot(sentence, lang_table.shape[0], dtype=lang_table.dtype) @ lang_table
 
 
+VALUE_HEADS = ("critic", "cost_critic")  # the modules of the value and cost-value heads
+
+
+def value_heads_only(grads):
+    """Gradients of an :class:`ActorCritic`'s parameters with zeros outside
+    :data:`VALUE_HEADS`: a step on them fits the values without moving the policy (CPO's
+    value fitting, after its trust-region step)."""
+    return {
+        "params": {
+            name: tree if name in VALUE_HEADS else jax.tree.map(jnp.zeros_like, tree)
+            for name, tree in grads["params"].items()
+        }
+    }
+
+
 def start_memory(network: ActorCritic, batch: int) -> jax.Array:
     """float32 (batch, memory_dim) zeros: the memory at an episode's start."""
     return jnp.zeros((batch, network.memory_dim), jnp.float32)

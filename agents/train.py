@@ -6,7 +6,8 @@ One update is
    ``num_envs`` auto-resetting environments (policy, checker, reward shaping, truncation
    bootstrap);
 2. :func:`agents.losses.gae`;
-3. ``update_epochs`` x ``num_minibatches`` steps of :func:`agents.losses.ppo_loss`;
+3. ``update_epochs`` x ``num_minibatches`` steps of :func:`agents.losses.ppo_loss` (in
+   ``cpo``, after :func:`agents.losses.cpo_step`, the value heads' only);
 4. the cost's Lagrange multiplier (a gradient step, or the PID controller's).
 
 One thing, the learner of every reward mode (:data:`agents.config.MODES`), hence its length.
@@ -35,13 +36,14 @@ from jax import lax
 from agents import checker_carry, rollout
 from agents.config import SWEEPABLE, PPOConfig, check_checker
 from agents.evaluation import play_episodes, summarise
-from agents.losses import PIDState, gae, pid_update, ppo_loss, shuffle
+from agents.losses import PIDState, cpo_step, gae, pid_update, ppo_loss, shuffle
 from agents.networks import (
     ActorCritic,
     apply_policy,
     start_memory,
     table_features,
     table_rows,
+    value_heads_only,
 )
 from agents.rollout import EnvCarry, Transition
 from agents.shield import make_shield, mask_logits
@@ -268,13 +270,26 @@ class Learner(struct.PyTreeNode):
         # A swept learning rate scales the optimiser's step (Adam's step is linear in it).
         lr_scale = runner.hparams["lr"] / c.lr if "lr" in runner.hparams else None
 
-        def loss(params, mb, lagrange):
-            out = self.forward(params, mb)
+        def samples(mb):  # per-sample arrays, flat (B, ...)
             flat = {k: v for k, v in mb.items() if k not in ("memory0", "start")}
             if c.recurrent:
                 flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), flat)
+            return flat
+
+        def loss(params, mb, lagrange):
+            out = self.forward(params, mb)
             policy = lambda p, *x: out  # noqa: E731  (computed from ``params`` above)
-            return ppo_loss(policy, params, flat, lagrange, c, blocked_weight, ent_coef)
+            return ppo_loss(policy, params, samples(mb), lagrange, c, blocked_weight, ent_coef)
+
+        step_stats = {}
+        if c.mode.policy_update == "cpo":
+            # The trust-region step moves the policy; the epochs below then fit the value
+            # heads alone, on its features, so that they move it no further. The constraint's
+            # excess is per step, the surrogates' scale: per episode, over the mean length.
+            excess = self.episode_cost(stats) - self.hparam(runner, "cost_limit")
+            excess = excess * jnp.maximum(stats["episodes"].sum(), 1) / c.batch_size
+            logits_of = lambda p: self.forward(p, batch)[0]  # noqa: E731
+            params, step_stats = cpo_step(logits_of, params, samples(batch), excess, c)
 
         def epoch(carry, k):
             params, opt_state = carry
@@ -283,6 +298,8 @@ class Learner(struct.PyTreeNode):
             def minibatch(carry, mb):
                 params, opt_state = carry
                 grads, info = jax.grad(loss, has_aux=True)(params, mb, runner.lagrange)
+                if c.mode.policy_update == "cpo":
+                    grads = value_heads_only(grads)
                 updates, opt_state = self.optimizer.update(grads, opt_state, params)
                 if lr_scale is not None:
                     updates = jax.tree.map(lambda u: u * lr_scale, updates)
@@ -294,6 +311,7 @@ class Learner(struct.PyTreeNode):
             epoch, (params, runner.opt_state), jax.random.split(perm_key, c.update_epochs)
         )
         (lagrange, pid), metrics = self._statistics(runner, info, stats)
+        metrics.update(step_stats)
         runner = runner.replace(
             params=params, opt_state=opt_state, lagrange=lagrange, key=key,
             update=runner.update + 1, env=env, pid=pid,
@@ -353,13 +371,17 @@ class Learner(struct.PyTreeNode):
             return {**batch, "start": start, "memory0": memory0}
         return jax.tree.map(lambda x: x.reshape((c.batch_size,) + x.shape[2:]), batch)
 
+    def episode_cost(self, stats: dict) -> jax.Array:
+        """A rollout's cost per episode: its cost over the episodes it finished. The
+        constraints hold it, so that they react to what a constraint budget is about, and are
+        not diluted by long safe stretches."""
+        return stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
+
     def _statistics(self, runner: RunnerState, info: dict, stats: dict):
         """``((next Lagrange multiplier, next PID state), the update's metrics)``."""
         c = self.config
         cost_rate = stats["cost"].sum() / c.batch_size
-        # Cost per episode (rollout cost over the episodes it finished): the multiplier reacts
-        # to what a constraint budget is about, and is not diluted by long safe stretches.
-        episode_cost = stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
+        episode_cost = self.episode_cost(stats)
         lagrange, pid = runner.lagrange, runner.pid
         # Held at its start value until the constraint switches on (whatever ``penalty``).
         active = self.constraint_ramp(runner.update) > 0

@@ -58,6 +58,7 @@ MODE_LABELS: dict[str, str] = {
     "lagrangian": "PPO-Lagrangian",
     "pid_lagrangian": "PID Lagrangian",
     "saute": "Saute",
+    "cpo": "CPO",
     "focops": "FOCOPS",
     "shield": "checker shield",
     "shield_monitor": "monitor shield",

@@ -52,6 +52,9 @@ from checker.model import TrainedChecker
         (dict(focops_lam=0.0), "focops_lam"),
         (dict(focops_max_kl=0.0), "focops_max_kl"),
         (dict(focops_nu_max=-1.0), "focops_nu_max"),
+        (dict(cpo_max_kl=0.0), "cpo_max_kl"),
+        (dict(cpo_cg_iters=0), "cpo_cg_iters"),
+        (dict(cpo_damping=-0.1), "cpo_damping"),
         (dict(reward_mode="lagrangian", cost_source="oracle"), "cost_source"),
         # a cost source the mode cannot use: its own is fixed, or it has no cost
         (dict(reward_mode="shield_monitor", cost_source="checker"), "cost_source='checker'"),
@@ -91,7 +94,7 @@ def test_bad_env_and_checker_fail_before_compiling():
     """No XLA compilation at all (counted through ``jax.monitoring``) before the error."""
     wide = TrainedChecker(params={}, config=dataclasses.replace(CHECKER_CONFIG, view_size=7))
     with count_compiles() as compiled:
-        for mode in ("checker", "lagrangian", "pid_lagrangian", "saute", "focops"):
+        for mode in ("checker", "lagrangian", "pid_lagrangian", "saute", "focops", "cpo"):
             config = dataclasses.replace(TINY, reward_mode=mode)
             for build in (make_learner, make_train):
                 with pytest.raises(ValueError, match="reward_mode='" + mode):

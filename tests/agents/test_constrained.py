@@ -3,7 +3,8 @@ update, and shows the behaviour that defines it on a tiny run: the PID Lagrangia
 multiplier follows its controller; Saute's policy observes the episode's remaining budget,
 which each cost spends, and its reward is cut once the budget is overspent; FOCOPS's
 multiplier moves by its gradient steps up to its cap, and its loss keeps the samples within
-its KL bound. A mode's own
+its KL bound; a CPO update moves the policy by its trust-region step alone; each traces with
+a recurrent policy. A mode's own
 state goes through checkpoints, and stays out of the other modes' (theirs hold what they
 held before it existed)."""
 
@@ -151,3 +152,40 @@ def test_focops_multiplier_climbs_to_its_cap_and_its_loss_keeps_close_samples(ti
     assert nu[0] < FOCOPS.focops_nu_max == nu[-1]
     kept = t["focops_kept"]
     assert np.all((kept > 0.5) & (kept <= 1)) and np.all(np.isfinite(t["loss"]))
+
+
+@pytest.mark.parametrize("mode", ["pid_lagrangian", "saute", "focops", "cpo"])
+def test_each_baseline_traces_with_a_recurrent_policy(mode):
+    """The update of each traces (not compiled) with a memory policy, which replays whole
+    sequences, on the monitor's cost."""
+    config = dataclasses.replace(TINY, reward_mode=mode, cost_source="monitor", recurrent=True)
+    learner = make_learner(config)
+    runner = jax.eval_shape(learner.init, jax.random.PRNGKey(0))
+    after, metrics = jax.eval_shape(learner.update, runner)
+    assert jax.tree.structure(after) == jax.tree.structure(runner)
+    assert metrics["loss"].shape == ()
+
+
+def test_cpo_update_moves_the_policy_by_its_trust_region_step_alone():
+    """The policy after a whole CPO update (the step, then the epochs that fit the value
+    heads) is as far from the acting one as the step measured, within ``cpo_max_kl``: the
+    value fitting moved the values, not the policy."""
+    config = dataclasses.replace(TINY, reward_mode="cpo", cost_source="monitor")
+    learner = make_learner(config)
+    runner = fast_jit(learner.init)(jax.random.PRNGKey(0))
+
+    @fast_jit
+    def go(runner):
+        batch = learner.collect(runner, jax.random.split(runner.key, 3)[1])[3]
+        after, metrics = learner.update(runner)
+        return batch, after, metrics, learner.forward(after.params, batch)[0]
+
+    batch, after, metrics, logits = jax.device_get(go(runner))
+    old, new = jax.nn.log_softmax(batch["logits"]), jax.nn.log_softmax(logits)
+    kl = float(np.mean(np.sum(np.exp(old) * (old - new), axis=-1)))
+    assert metrics["cpo_step"] > 0 and 0 < kl <= config.cpo_max_kl
+    np.testing.assert_allclose(kl, metrics["cpo_kl"], rtol=1e-4)
+    before, fitted = runner.params["params"], after.params["params"]
+    for head in ("critic", "cost_critic"):
+        assert not np.array_equal(before[head]["kernel"], fitted[head]["kernel"])
+    assert np.isfinite(metrics["loss"]) and metrics["value_loss"] >= 0

@@ -1,6 +1,7 @@
 """``agents.losses``: GAE against a numpy loop, the minibatch shuffle (a permutation set by its
 key, spreading every item evenly over minibatches), the PID Lagrangian's multiplier
-answering a step of the cost, and FOCOPS's update bounded in KL."""
+answering a step of the cost, FOCOPS's update bounded in KL, and CPO's step inside its trust
+region, with its recovery step where the policy is infeasible."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import pytest
 from helpers.agents_cases import fast_jit
 
 from agents.config import PPOConfig
-from agents.losses import PIDState, gae, pid_update, ppo_loss, shuffle
+from agents.losses import PIDState, cpo_step, gae, pid_update, ppo_loss, shuffle
 
 
 def gae_reference(values, rewards, dones, last_value, gamma, lam):
@@ -152,3 +153,56 @@ def test_focops_update_stays_within_its_kl_bound():
     bounded, free = kls[focops.focops_max_kl], kls[1e6]
     assert np.all(bounded > focops.focops_max_kl * 0.9)  # it did move up to the bound
     assert np.all(bounded < focops.focops_max_kl * 1.25) and np.all(free > 10 * bounded)
+
+
+CPO = dataclasses.replace(PPOConfig(), reward_mode="cpo", cpo_damping=1e-3)
+
+
+@pytest.fixture(scope="module")
+def cpo_steps():
+    """CPO steps of the tabular policy from uniform, where action 0 earns the most reward
+    and is the only costly one, at four distances of the cost from its limit."""
+    batch = tabular_batch([3.0, -1.0, -2.0], [1.0, 0.0, 0.0])
+    state = batch["image"]
+    logits_of = lambda p: p[state]  # noqa: E731
+    step = fast_jit(lambda excess: cpo_step(logits_of, jnp.zeros((STATES, ACTIONS)), batch,
+                                            excess, CPO))  # fmt: skip
+    out = {}
+    for excess in (-1.0, -0.01, 0.01, 1.0):
+        params, stats = jax.device_get(step(jnp.float32(excess)))
+        probs = np.asarray(jax.nn.softmax(params[0]))
+        # the surrogates' change: mean ratio x advantage (normalised) and x cost advantage
+        ratio = probs * ACTIONS
+        adv = np.array([3.0, -1.0, -2.0])
+        adv = (adv - adv.mean()) / adv.std()
+        gain, rise = (ratio * adv).mean(), (ratio * np.array([2, -1, -1]) / 3).mean()
+        kl = np.mean(np.sum((np.log(1 / ACTIONS) - jax.nn.log_softmax(params)) / ACTIONS, -1))
+        out[excess] = (params, stats, probs, gain, rise, float(kl))  # KL(old || new)
+    return out
+
+
+def test_cpo_steps_stay_inside_the_trust_region(cpo_steps):
+    """Whatever the case, the step's measured mean KL is within ``cpo_max_kl`` (and uses
+    most of it); where the cost has slack, it rises by no more than the slack."""
+    cases = {excess: int(v[1]["cpo_case"]) for excess, v in cpo_steps.items()}
+    assert cases == {-1.0: 3, -0.01: 2, 0.01: 1, 1.0: 0}  # every case of the dual
+    for excess, (_, stats, _, _, rise, kl) in cpo_steps.items():
+        assert stats["cpo_step"] > 0
+        np.testing.assert_allclose(stats["cpo_kl"], kl, rtol=1e-4)
+        assert 0.6 * CPO.cpo_max_kl < kl <= CPO.cpo_max_kl, excess
+        assert rise <= max(-excess, 0.0) + 1e-6, excess
+    # Far from the limit it is the trust region's reward step; at a slack of 0.01 the cost
+    # binds: less of the costly action, still more reward.
+    far, near = cpo_steps[-1.0], cpo_steps[-0.01]
+    assert far[3] > near[3] > 0 and far[2][0] > near[2][0]
+    assert 0.5 * 0.01 < near[4] <= 0.01 < far[4]  # the cost takes up most of its slack
+
+
+def test_cpo_recovers_an_infeasible_policy_by_lowering_its_cost_alone(cpo_steps):
+    """Over the limit by more than the trust region can undo (case 0), the step is the pure
+    decrease of the cost: the costly action loses, the others gain alike whatever their
+    rewards, and the reward surrogate falls with the cost's."""
+    _, stats, probs, gain, rise, _ = cpo_steps[1.0]
+    assert int(stats["cpo_case"]) == 0 and rise < 0 and gain < 0
+    assert probs[0] < 1 / 3 and probs[1] == pytest.approx(probs[2], rel=1e-6)
+    assert cpo_steps[0.01][2][1] > cpo_steps[0.01][2][2]  # near the limit, the reward counts
