@@ -210,6 +210,9 @@ class PPOConfig:
     cpo_max_kl: float = 0.01
     cpo_cg_iters: int = 10
     cpo_damping: float = 0.1
+    # CPO: the Fisher-vector products average the KL over every this many samples (whole env
+    # sequences of a recurrent policy), for a fraction of their cost (OmniSafe's is 4)
+    cpo_fisher_every: int = 4
     novelty_bonus: float = 0.01  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
     # the bonus pays for (cell, carrying) pairs; False: for cells, whatever is carried
@@ -249,7 +252,7 @@ class PPOConfig:
         object.__setattr__(self, "env_kwargs", pairs)
         positive = (
             "num_envs", "num_steps", "total_timesteps", "update_epochs", "num_minibatches",
-            "eval_every", "eval_episodes", "cpo_cg_iters",
+            "eval_every", "eval_episodes", "cpo_cg_iters", "cpo_fisher_every",
         )  # fmt: skip
         for name in positive:
             value = getattr(self, name)

@@ -163,29 +163,36 @@ def conjugate_gradient(matvec: Callable, rhs: jax.Array, iters: int) -> jax.Arra
 
 
 def cpo_step(
-    logits_of: Callable, params, batch: dict[str, jax.Array], excess, config: PPOConfig
+    logits_of: Callable,
+    params,
+    batch: dict[str, jax.Array],
+    excess,
+    config: PPOConfig,
+    fisher: tuple[Callable, jax.Array] | None = None,
 ) -> tuple[object, dict[str, jax.Array]]:
     """One CPO policy update (Achiam, Held, Tamar and Abbeel 2017) from the acting policy.
 
     ``logits_of(params) -> (B, A)`` are the policy's logits of the batch's samples; ``batch``
     holds (B,) ``action``, ``log_prob`` and (B, A) ``logits`` of the acting policy, and
-    ``advantage`` (normalised here) and ``cost_advantage`` (centred: its scale is the
-    cost's); ``excess`` is the constraint's value on the surrogates' per-step scale (the
-    learner's: the cost per episode minus its limit, over the mean episode length; > 0: the
-    policy is infeasible). With ``g`` and ``b`` the gradients of the reward and cost surrogates and
-    ``F`` the Fisher matrix, the Hessian of the mean ``KL(old || policy)`` (its products are
-    a ``jvp`` of its gradient, plus ``cpo_damping``), conjugate gradient gives ``F^-1 g`` and
-    ``F^-1 b`` in ``cpo_cg_iters`` steps and the linearised problem (maximise ``g.x``
-    subject to ``x.F.x / 2 <= cpo_max_kl`` and ``excess + b.x <= 0``) is solved in closed
-    form through its dual. Where no step satisfies both (``case`` 0) the step is the
-    recovery one, ``-sqrt(2 cpo_max_kl / b.F^-1.b) F^-1 b``: a pure decrease of the cost. A
-    backtracking line search (:data:`LINE_SEARCH_STEPS` sizes, each
-    :data:`LINE_SEARCH_DECAY` of the one before) takes the first that keeps the measured
-    KL within ``cpo_max_kl``, does not raise the cost surrogate by more than the slack
-    ``max(-excess, 0)`` and, when the problem was feasible (``case`` >= 2), does not lower
-    the reward surrogate; with none, the policy stays. Returns ``(params, statistics)``:
-    ``cpo_case`` (4: no cost gradient, 3: the trust region is feasible, 2 and 1: the
-    constraint binds, 0: recovery), ``cpo_step`` (the step size taken, 0: none), ``cpo_kl``.
+    ``advantage`` (normalised here) and ``cost_advantage`` (centred: its scale is the cost's);
+    ``excess`` is the constraint's value on the surrogates' per-step scale (the learner's: the
+    cost per episode minus its limit, over the mean episode length; > 0: the policy is
+    infeasible). With ``g`` and ``b`` the gradients of the reward and cost surrogates and ``F``
+    the Fisher matrix, the Hessian of the mean ``KL(old || policy)`` (its products are a ``jvp``
+    of its gradient, plus ``cpo_damping``; over the samples of ``fisher``, a
+    ``(logits_of, old logits)`` pair of a part of the batch, where given), conjugate gradient
+    gives ``F^-1 g`` and ``F^-1 b`` in ``cpo_cg_iters`` steps and the linearised problem
+    (maximise ``g.x`` subject to ``x.F.x / 2 <= cpo_max_kl`` and ``excess + b.x <= 0``) is
+    solved in closed form through its dual. Where no step satisfies both (``case`` 0) the step
+    is the recovery one, ``-sqrt(2 cpo_max_kl / b.F^-1.b) F^-1 b``: a pure decrease of the
+    cost. A backtracking line search
+    (:data:`LINE_SEARCH_STEPS` sizes, each :data:`LINE_SEARCH_DECAY` of the one before) takes
+    the first that keeps the measured KL within ``cpo_max_kl``, does not raise the cost
+    surrogate by more than the slack ``max(-excess, 0)`` and, when the problem was feasible
+    (``case`` >= 2), does not lower the reward surrogate; with none, the policy stays. Returns
+    ``(params, statistics)``: ``cpo_case`` (4: no cost gradient, 3: the trust region is
+    feasible, 2 and 1: the constraint binds, 0: recovery), ``cpo_step`` (the step size taken, 0:
+    none), ``cpo_kl``.
     """
     c = config
     flat, unravel = ravel_pytree(params)
@@ -203,8 +210,16 @@ def cpo_step(
 
     before, pullback = jax.vjp(lambda x: surrogates(x)[0], flat)
     g, b = jax.vmap(pullback)(jnp.eye(2, dtype=flat.dtype))[0]
-    _, fisher = jax.linearize(jax.grad(lambda x: surrogates(x)[1]), flat)
-    fvp = lambda v: fisher(v) + c.cpo_damping * v  # noqa: E731
+    def mean_kl(x):
+        if fisher is None:
+            return surrogates(x)[1]
+        part_of, part_old = fisher
+        part_old = jax.nn.log_softmax(part_old)
+        log_probs = jax.nn.log_softmax(part_of(unravel(x)))
+        return jnp.sum(jnp.exp(part_old) * (part_old - log_probs), axis=-1).mean()
+
+    _, hessian = jax.linearize(jax.grad(mean_kl), flat)
+    fvp = lambda v: hessian(v) + c.cpo_damping * v  # noqa: E731
     x, p = jax.vmap(lambda v: conjugate_gradient(fvp, v, c.cpo_cg_iters))(jnp.stack([g, b]))
     delta, cost = c.cpo_max_kl, excess
     # The paper's dual is written for minimising a loss, whose gradient is -g: hence -g.p.

@@ -289,7 +289,9 @@ class Learner(struct.PyTreeNode):
             excess = self.episode_cost(stats) - self.hparam(runner, "cost_limit")
             excess = excess * jnp.maximum(stats["episodes"].sum(), 1) / c.batch_size
             logits_of = lambda p: self.forward(p, batch)[0]  # noqa: E731
-            params, step_stats = cpo_step(logits_of, params, samples(batch), excess, c)
+            params, step_stats = cpo_step(
+                logits_of, params, samples(batch), excess, c, self.fisher_part(batch)
+            )
 
         def epoch(carry, k):
             params, opt_state = carry
@@ -321,6 +323,22 @@ class Learner(struct.PyTreeNode):
             success = metrics["successes"] / jnp.maximum(episodes, 1)
             runner = runner.replace(success=jnp.where(episodes > 0, success, runner.success))
         return runner, metrics
+
+    def fisher_part(self, batch: dict):
+        """CPO's Fisher-vector products average over every ``cpo_fisher_every``-th sample
+        (whole env sequences of a recurrent policy): ``(logits_of, old logits)`` of that part,
+        or None for the whole batch."""
+        every = self.config.cpo_fisher_every
+        if every == 1:
+            return None
+        if self.config.recurrent:
+            part = {k: v[:, ::every] for k, v in batch.items() if k != "memory0"}
+            part["memory0"] = batch["memory0"][::every]
+            old = part["logits"].reshape((-1,) + part["logits"].shape[2:])
+        else:
+            part = jax.tree.map(lambda x: x[::every], batch)
+            old = part["logits"]
+        return (lambda p: self.forward(p, part)[0]), old
 
     def minibatches(self, batch: dict, key: jax.Array) -> dict:
         """``batch`` shuffled and split into ``num_minibatches`` (leading axis): samples

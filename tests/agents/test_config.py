@@ -55,6 +55,7 @@ from checker.model import TrainedChecker
         (dict(cpo_max_kl=0.0), "cpo_max_kl"),
         (dict(cpo_cg_iters=0), "cpo_cg_iters"),
         (dict(cpo_damping=-0.1), "cpo_damping"),
+        (dict(cpo_fisher_every=0), "cpo_fisher_every"),
         (dict(reward_mode="lagrangian", cost_source="oracle"), "cost_source"),
         # a cost source the mode cannot use: its own is fixed, or it has no cost
         (dict(reward_mode="shield_monitor", cost_source="checker"), "cost_source='checker'"),
