@@ -40,13 +40,14 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from agents.config import PPOConfig
+from agents.config import PPOConfig, renamed
 from jaxgrid import io, rundir
 
 __all__ = ["DIGESTS", "METRICS", "RUN_INFO", "CheckpointError", "ResumeError",
            "check_run_info", "checker_sha256", "finished", "kept", "make_manager",
            "read_run_info", "record_digests", "records_sha256", "restore", "resume_point",
-           "run_info", "save", "saved_config", "verified_step", "write_run_info"]  # fmt: skip
+           "run_info", "save", "saved_config", "stored", "verified_step",
+           "write_run_info"]  # fmt: skip
 
 DIGESTS = "checkpoints.json"
 METRICS = "metrics.jsonl"
@@ -77,10 +78,37 @@ def make_manager(path: Path):
 
 
 def save_args(state):
-    """The orbax arguments :func:`save` writes ``state`` with (a standard pytree save)."""
+    """The orbax arguments :func:`save` writes ``state`` with (a standard pytree save of
+    :func:`stored`)."""
     import orbax.checkpoint as ocp
 
-    return ocp.args.StandardSave(state)
+    return ocp.args.StandardSave(stored(state))
+
+
+def stored(tree):
+    """``tree`` as checkpoints hold it: its dataclasses as dicts of their pytree fields,
+    without the fields that are None. Such a field is a reward mode's own state (the PID
+    controller's, Saute's budget), absent in the other modes, so that adding one changes no
+    other mode's checkpoint: those written before it existed still restore."""
+    if dataclasses.is_dataclass(tree) and not isinstance(tree, type):
+        return {
+            f.name: stored(getattr(tree, f.name))
+            for f in dataclasses.fields(tree)
+            if f.metadata.get("pytree_node", True) and getattr(tree, f.name) is not None
+        }
+    if isinstance(tree, dict):
+        return {k: stored(v) for k, v in tree.items()}
+    return tree
+
+
+def _rebuilt(template, saved):
+    """The inverse of :func:`stored`: ``template`` (a state or its abstract shapes) with the
+    values of ``saved`` in the fields it holds."""
+    if dataclasses.is_dataclass(template) and not isinstance(template, type):
+        return template.replace(**{k: _rebuilt(getattr(template, k), v) for k, v in saved.items()})
+    if isinstance(template, dict):
+        return {k: _rebuilt(template[k], v) for k, v in saved.items()}
+    return saved
 
 
 def kept(manager, out: Path | None, step: int | None = None) -> str:
@@ -289,7 +317,9 @@ def restore(manager, step, abstract, shardings):
     else:
         target = abstract
     try:
-        return manager.restore(step, args=ocp.args.StandardRestore(target))
+        return _rebuilt(
+            target, manager.restore(step, args=ocp.args.StandardRestore(stored(target)))
+        )
     except Exception as e:  # orbax's and tensorstore's errors share no base class
         error = e
     # Fields are added last, with a default: try without the newest one, then two, ...
@@ -300,7 +330,7 @@ def restore(manager, step, abstract, shardings):
     restored = None
     for k in range(1, len(defaulted) + 1):
         added = defaulted[-k:]
-        older = {f.name: getattr(target, f.name) for f in fields if f.name not in added}
+        older = {k: v for k, v in stored(target).items() if k not in added}
         try:
             restored = manager.restore(step, args=ocp.args.StandardRestore(older))
             break
@@ -318,7 +348,7 @@ def restore(manager, step, abstract, shardings):
     print(f"{manager.directory}: checkpoint {step} predates {', '.join(added)}; "
           "starting from zeros", file=sys.stderr)  # fmt: skip
     filled = {n: jax.tree.map(zeros, getattr(target, n)) for n in added}
-    return type(target)(**restored, **filled)
+    return _rebuilt(target, restored).replace(**filled)
 
 
 # ----------------------------------------------------------------------------------------
@@ -360,8 +390,8 @@ def check_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None,
     path = out / RUN_INFO
     start_over = "delete it to start over"
     try:
-        saved = io.read_json(path)
-        saved["seeds"], saved["config"]
+        saved = _upgraded(io.read_json(path))
+        saved["seeds"]
     except FileNotFoundError:
         raise ResumeError(f"{path}: missing, so the checkpoints in {out / 'checkpoints'} cannot "
                           f"be matched to a configuration; {start_over}") from None  # fmt: skip
@@ -398,12 +428,22 @@ def read_run_info(out: Path) -> dict:
     """``out/run.json`` as :func:`write_run_info` wrote it; a ``ValueError`` naming the
     directory if there is none (no run there) or the file if it is damaged."""
     try:
-        info = io.read_json(out / RUN_INFO)
-        info["config"]
+        info = _upgraded(io.read_json(out / RUN_INFO))
     except FileNotFoundError:
         raise ValueError(f"{out}: no run.json, so no run of agents.runner.run") from None
     except (ValueError, TypeError, KeyError) as e:
         raise ValueError(f"{out / RUN_INFO}: damaged ({e})") from None
+    return info
+
+
+def _upgraded(info: dict) -> dict:
+    """A ``run.json`` record with the settings of its config and sweep under today's names
+    (:data:`agents.config.RENAMED`); a ``KeyError`` or ``TypeError`` if it has no config."""
+    if not isinstance(info["config"], dict):
+        raise TypeError(f"its config is {type(info['config']).__name__}, not an object")
+    info = {**info, "config": renamed(info["config"])}
+    if info.get("sweep") is not None:
+        info["sweep"] = renamed(info["sweep"])
     return info
 
 

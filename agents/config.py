@@ -15,14 +15,56 @@ import numpy as np
 import jaxgrid
 from jaxgrid.constrained import language_table
 
-# In display order: the paper's method first, then its baselines, then the shields (tables
-# and figures use it).
-REWARD_MODES = ("checker", "shaped", "none", "lagrangian", "shield", "shield_monitor")
+COST_SOURCES = ("checker", "monitor")  # the checker's alarms; the monitor's costly steps
+
+
+@dataclasses.dataclass(frozen=True)
+class Mode:
+    """A reward mode: where its cost comes from and what the learner does with it.
+
+    ``sources`` are the cost sources (:data:`COST_SOURCES`) it can learn from, its default
+    first (none: it learns from the env reward alone). The cost is a penalty on the reward
+    (``penalty``), a constraint whose Lagrange multiplier moves by gradient steps or a PID
+    controller (``multiplier``), a budget in the observation (``budget``), or a constraint on
+    the policy update (``policy_update``); a ``shield`` masks the actions it judges costly.
+    """
+
+    sources: tuple[str, ...] = ()
+    penalty: bool = False  # the training reward is the env reward minus penalty x cost
+    multiplier: str | None = None  # "gradient" or "pid": how the Lagrange multiplier moves
+    policy_update: str = "ppo"  # "ppo" (clipped ratio), "focops" or "cpo"
+    budget: bool = False  # the remaining safety budget is observed, the reward cut once spent
+    shield: bool = False  # the cost source vetoes actions (agents.shield)
+
+    @property
+    def cost_critic(self) -> bool:
+        """Whether the learner estimates the cost's advantage (a cost critic and its GAE)."""
+        return self.multiplier is not None or self.policy_update != "ppo"
+
+
+# Every reward mode, in display order: the paper's method first, then its baselines, then the
+# shields (tables and figures use it).
+MODES = {
+    "checker": Mode(("checker",), penalty=True),
+    "shaped": Mode(("monitor",), penalty=True),
+    "none": Mode(),
+    "lagrangian": Mode(COST_SOURCES, multiplier="gradient"),
+    "pid_lagrangian": Mode(COST_SOURCES, multiplier="pid"),
+    "saute": Mode(COST_SOURCES, budget=True),
+    "cpo": Mode(COST_SOURCES, policy_update="cpo"),
+    "focops": Mode(COST_SOURCES, multiplier="gradient", policy_update="focops"),
+    "shield": Mode(("checker",), shield=True),
+    "shield_monitor": Mode(("monitor",), shield=True),
+}
+REWARD_MODES = tuple(MODES)
+# The modes the paper's experiments compare (``python -m experiments.two_rooms`` trains them).
+PAPER_MODES = ("checker", "shaped", "none", "lagrangian", "shield", "shield_monitor")
 # Hyperparameters that can differ between the agents of one compiled program (a sweep):
 # they become traced per-agent values (``RunnerState.hparams``) instead of constants.
-SWEEPABLE = ("penalty", "checker_threshold", "cost_target", "ent_coef", "lr")
-# Modes whose actions pass through a shield (agents.shield), and the judge of each.
-SHIELD_JUDGES = {"shield": "checker", "shield_monitor": "monitor"}
+SWEEPABLE = ("penalty", "checker_threshold", "cost_limit", "ent_coef", "lr")
+# Settings renamed since runs were first saved, old name -> new name: a saved run's settings
+# and sweeps (run.json, an experiment's config.json) are read under the new names.
+RENAMED = {"cost_target": "cost_limit"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,11 +81,31 @@ class PPOConfig:
     the window ending at the new observation exceeds ``checker_threshold`` (``soft_checker``:
     minus ``penalty`` times the probability); ``lagrangian`` PPO-Lagrangian with the
     checker's alarms as the cost, a cost critic, and a multiplier learned to hold the alarms
-    per episode at ``cost_target``; ``shield`` removes, before each step, the actions whose
-    candidate next window the checker scores above ``checker_threshold``
-    (:mod:`agents.shield`), and ``shield_monitor`` those whose candidate step the ground-truth
-    monitor flags. Both shields add ``penalty`` times the policy's own probability of the
-    blocked actions to the loss, so that the policy itself learns what was blocked.
+    per episode at ``cost_limit`` (with ``cost_source="monitor"`` the cost is the monitor's
+    instead: 1 on each step with a costly event, the safe-RL convention);
+    ``pid_lagrangian`` the same with the multiplier set by a PID controller on the cost per
+    episode (Stooke, Achiam and Abbeel 2020; :func:`agents.losses.pid_update`: ``pid_kp``
+    on its excess over ``cost_limit``, ``pid_ki`` on the excess summed and clipped at 0,
+    ``pid_kd`` on its rise since the last update), so that it reacts at once to a cost that
+    appears and stops pushing as soon as the cost is back under the limit; ``saute`` PPO on
+    the env reward, with the episode's remaining safety budget in the observation (Sootla et
+    al. 2022: 1 at the episode's start, less the cost over ``cost_limit`` at each step;
+    :func:`agents.evaluation.spend`) and, once it is overspent, a training reward of
+    ``-saute_penalty`` on every step, so that the budget the policy observes tells it what the
+    rest of the episode is worth; ``focops`` FOCOPS (Zhang, Vuong and Ross 2020;
+    :func:`agents.losses.focops_loss`): the clipped ratio gives way to a first-order loss that
+    pulls the policy towards the old one reweighted by ``exp((A - nu * A_cost) / focops_lam)``
+    and drops the samples whose KL to the old policy exceeds ``focops_max_kl``, its multiplier
+    ``nu`` moving as the Lagrangian's, capped at ``focops_nu_max``; ``cpo`` CPO (Achiam et
+    al. 2017; :func:`agents.losses.cpo_step`): each update's policy step is the solution of
+    the problem linearised at the acting policy, within the trust region ``cpo_max_kl`` and
+    under the cost constraint (a recovery step that only lowers the cost where it is
+    infeasible), then PPO's epochs fit the value heads alone; ``shield``
+    removes, before each step, the actions whose candidate next window the checker scores
+    above ``checker_threshold`` (:mod:`agents.shield`), and ``shield_monitor`` those whose
+    candidate step the ground-truth monitor flags. Both shields add ``penalty`` times the
+    policy's own probability of the blocked actions to the loss, so that the policy itself
+    learns what was blocked.
 
     With ``alarm_onset`` the ``checker`` and ``lagrangian`` signals count only the step that
     raises an alarm, not its repeats while it stays up (an ablation: ``docs/decisions.md``).
@@ -105,6 +167,9 @@ class PPOConfig:
     vf_coef: float = 0.5  # value-loss weight
     max_grad_norm: float = 0.5  # global gradient-norm clip
     reward_mode: str = "none"  # one of REWARD_MODES
+    # where the cost comes from, one of COST_SOURCES that the mode can use; None: its own
+    # (MODES[reward_mode].sources[0]: lagrangian and the constrained modes use the checker)
+    cost_source: str | None = None
     # reward subtracted per violation (shaped) or alarm (checker); shields: weight of the
     # policy's probability of blocked actions in the loss
     penalty: float = 1.0
@@ -124,9 +189,30 @@ class PPOConfig:
     # (the step the alarm predicts a violation of), not to the step that raised it: without
     # it, checker agents stop before the doors (docs/decisions.md)
     alarm_forward: bool = True
-    cost_target: float = 0.05  # Lagrangian: alarms per episode to hold
+    # the constrained modes: cost per episode to hold (alarms, or the monitor's costly steps)
+    cost_limit: float = 0.05
     lagrangian_lr: float = 0.05  # Lagrangian: multiplier step size
     lagrangian_init: float = 0.0  # Lagrangian: starting multiplier
+    # PID Lagrangian: the multiplier's gains on the cost error, its integral and the cost's rise
+    pid_kp: float = 1.0
+    pid_ki: float = 0.05
+    pid_kd: float = 0.1
+    # Saute: the training reward of every step once the episode's budget is overspent is
+    # -saute_penalty (0: the reward is cut)
+    saute_penalty: float = 0.0
+    # FOCOPS: the temperature of its reweighted policy, the KL above which a sample is dropped,
+    # and the cap of its multiplier (which moves as the Lagrangian's, by lagrangian_lr)
+    focops_lam: float = 1.5
+    focops_max_kl: float = 0.02
+    focops_nu_max: float = 2.0
+    # CPO: the trust region (mean KL to the acting policy), conjugate-gradient steps, and the
+    # damping added to the Fisher matrix
+    cpo_max_kl: float = 0.01
+    cpo_cg_iters: int = 10
+    cpo_damping: float = 0.1
+    # CPO: the Fisher-vector products average the KL over every this many samples (whole env
+    # sequences of a recurrent policy), for a fraction of their cost (OmniSafe's is 4)
+    cpo_fisher_every: int = 4
     novelty_bonus: float = 0.01  # episodic bonus per new (cell, carrying) pair, annealed to 0
     novelty_changes: bool = False  # the bonus also pays for each cell's first change per episode
     # the bonus pays for (cell, carrying) pairs; False: for cells, whatever is carried
@@ -166,7 +252,7 @@ class PPOConfig:
         object.__setattr__(self, "env_kwargs", pairs)
         positive = (
             "num_envs", "num_steps", "total_timesteps", "update_epochs", "num_minibatches",
-            "eval_every", "eval_episodes",
+            "eval_every", "eval_episodes", "cpo_cg_iters", "cpo_fisher_every",
         )  # fmt: skip
         for name in positive:
             value = getattr(self, name)
@@ -181,7 +267,8 @@ class PPOConfig:
             value = getattr(self, f.name)
             if isinstance(value, float | np.floating) and not math.isfinite(value):
                 raise ValueError(f"PPOConfig.{f.name} must be finite, got {value!r}")
-        for name in ("lr", "clip_eps", "max_grad_norm"):
+        for name in ("lr", "clip_eps", "max_grad_norm", "focops_lam", "focops_max_kl",
+                     "cpo_max_kl", "cpo_damping"):  # fmt: skip
             if not getattr(self, name) > 0:
                 raise ValueError(f"PPOConfig.{name} must be > 0, got {getattr(self, name)!r}")
         for name in ("gamma", "gae_lambda", "penalty_start", "penalty_warmup", "penalty_gate"):
@@ -204,9 +291,14 @@ class PPOConfig:
             "ent_coef",
             "vf_coef",
             "penalty",
-            "cost_target",
+            "cost_limit",
             "lagrangian_lr",
             "lagrangian_init",
+            "pid_kp",
+            "pid_ki",
+            "pid_kd",
+            "saute_penalty",
+            "focops_nu_max",
             "novelty_bonus",
         )
         for name in nonnegative:
@@ -228,6 +320,16 @@ class PPOConfig:
         if self.reward_mode not in REWARD_MODES:
             raise ValueError(
                 f"PPOConfig.reward_mode must be one of {REWARD_MODES}, got {self.reward_mode!r}"
+            )
+        sources = MODES[self.reward_mode].sources
+        if self.cost_source is not None and self.cost_source not in COST_SOURCES:
+            raise ValueError(f"PPOConfig.cost_source must be None or one of {COST_SOURCES}, "
+                             f"got {self.cost_source!r}")  # fmt: skip
+        if self.cost_source is not None and self.cost_source not in sources:
+            uses = f"learns from the {' or the '.join(sources)} only" if sources else "has no cost"
+            raise ValueError(
+                f"PPOConfig.cost_source={self.cost_source!r}: reward_mode={self.reward_mode!r} "
+                f"{uses} (leave cost_source None)"
             )
         if self.alarm_forward and (self.alarm_onset or self.soft_checker):
             raise ValueError(
@@ -268,13 +370,24 @@ class PPOConfig:
         return self.num_chunks * self.eval_every
 
     @property
+    def mode(self) -> Mode:
+        """The reward mode's row of :data:`MODES`."""
+        return MODES[self.reward_mode]
+
+    @property
+    def cost_from(self) -> str | None:
+        """The cost source of the run: ``cost_source``, else the mode's own (None: no cost)."""
+        sources = self.mode.sources
+        return self.cost_source if self.cost_source is not None else (sources or (None,))[0]
+
+    @property
     def uses_checker(self) -> bool:
-        return self.reward_mode in ("checker", "lagrangian", "shield")
+        return self.cost_from == "checker"
 
     @property
     def shield_judge(self) -> str | None:
         """``"checker"`` or ``"monitor"`` in the shield modes, else None."""
-        return SHIELD_JUDGES.get(self.reward_mode)
+        return self.cost_from if self.mode.shield else None
 
     def make_env(self):
         return jaxgrid.make(self.env_id, **dict(self.env_kwargs))
@@ -283,9 +396,11 @@ class PPOConfig:
 def check_checker(config: PPOConfig, checker, env) -> None:
     """Fail fast, before any compile, when the checker does not fit the run."""
     if config.uses_checker and checker is None:
+        instead = ", or learn from the monitor's cost: cost_source='monitor'"
         raise ValueError(
-            f"PPOConfig.reward_mode={config.reward_mode!r} needs a trained checker: pass "
-            "checker=checker.load(DIR) (or train one with `python -m checker`)"
+            f"PPOConfig.reward_mode={config.reward_mode!r} learns from the checker's alarms and "
+            "needs a trained checker: pass checker=checker.load(DIR) (or train one with "
+            f"`python -m checker`){instead if 'monitor' in config.mode.sources else ''}"
         )
     if checker is not None and checker.config.view_size != env.view_size:
         raise ValueError(
@@ -300,14 +415,21 @@ def check_checker(config: PPOConfig, checker, env) -> None:
         )
 
 
+def renamed(settings: dict) -> dict:
+    """``settings`` {name: value} with the names of :data:`RENAMED` replaced by the new ones,
+    so that what an older version saved reads as today's settings."""
+    return {RENAMED.get(name, name): value for name, value in settings.items()}
+
+
 def check_sweep(sweep, config: PPOConfig | None = None) -> dict[str, tuple[float, ...]]:
     """``sweep`` {name: values} as {name: distinct floats} in the given order ({} for None).
 
-    ``ValueError`` naming the problem for a name not in :data:`SWEEPABLE`, no or repeated
-    values, or a value that ``config`` (default: the defaults) would refuse.
+    A name of :data:`RENAMED` is read as its new name. ``ValueError`` naming the problem for
+    a name not in :data:`SWEEPABLE`, no or repeated values, or a value that ``config``
+    (default: the defaults) would refuse.
     """
     out = {}
-    for name, values in (sweep or {}).items():
+    for name, values in renamed(dict(sweep or {})).items():
         if name not in SWEEPABLE:
             raise ValueError(f"cannot sweep {name!r}: sweepable are {', '.join(SWEEPABLE)}")
         try:

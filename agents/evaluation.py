@@ -25,8 +25,17 @@ def violation_of(ts) -> jax.Array:
 
 
 def cost_of(ts) -> jax.Array:
-    """Ground-truth float32 costs of a (batched) timestep; zeros for envs without one."""
+    """The monitor's float32 cost of a (batched) timestep (1 where a costly event happened,
+    within a budget or not); zeros for envs without a constraint."""
     return ts.info.get("cost", jnp.zeros_like(ts.reward))
+
+
+def spend(budget: jax.Array, cost: jax.Array, limit) -> jax.Array:
+    """A Saute agent's remaining safety budget after a step of cost ``cost``: ``budget``
+    (1 at an episode's start) less ``cost / limit``, its share of the episode's cost limit,
+    kept in [-1, 1] (the policy observes it; below 0 the budget is overspent). With
+    ``limit`` 0 any cost spends it all."""
+    return jnp.clip(budget - cost / jnp.maximum(limit, 1e-8), -1.0, 1.0)
 
 
 def play_episodes(
@@ -37,13 +46,16 @@ def play_episodes(
     shield=None,
     memory=None,
     track: Callable | None = None,
+    cost_limit=None,
 ) -> dict[str, jax.Array]:
     """Play ``num_episodes`` episodes in parallel with ``act(obs_batch, key) -> actions``.
 
     With a ``shield`` (:class:`agents.shield.Shield`) the actions come from
     ``act(obs_batch, key, allowed)``, ``allowed`` the shield's bool (E, A) mask of the step.
     With a policy ``memory`` (a pytree, its start value), ``act`` takes it last and returns
-    ``(actions, memory)``; each env plays one episode, so it is never reset.
+    ``(actions, memory)``; each env plays one episode, so it is never reset. With a
+    ``cost_limit`` (a Saute policy's), ``act`` also takes ``budget=`` the episode's remaining
+    safety budget (E,) (:func:`spend` of the monitor's costs so far).
 
     Layouts come from ``jax.random.split(key, num_episodes)``; action sampling uses keys
     folded from ``key`` too, so a fixed key gives the same episodes for the same policy.
@@ -64,16 +76,19 @@ def play_episodes(
     stateful = memory is not None
 
     def body(carry, t):
-        (states, memory, policy_memory), obs, alive, ret, viol, length, seen, costs = carry
+        (states, memory, (policy_memory, left)), obs, alive, ret, viol, length, seen, costs = carry
         args = (obs, jax.random.fold_in(act_key, t))
         if shield is not None:
             allowed, _ = shield.allowed_now(memory, states)
             args = args + (allowed,)
+        given = {} if cost_limit is None else {"budget": left}
         if stateful:
-            actions, policy_memory = act(*args, policy_memory)
+            actions, policy_memory = act(*args, policy_memory, **given)
         else:
-            actions = act(*args)
+            actions = act(*args, **given)
         states, ts = jax.vmap(env.step)(states, actions)
+        if cost_limit is not None:
+            left = spend(left, cost_of(ts), cost_limit)
         if shield is not None:
             memory = shield.observe(memory, ts.observation, actions)
         live = alive.astype(jnp.int32)
@@ -83,11 +98,12 @@ def play_episodes(
         seen = seen | (track(states) & alive[:, None])
         costs = _costs_after(costs, cost_of(ts), alive)
         alive = alive & ~(ts.terminated | ts.truncated)
-        carry = ((states, memory, policy_memory), ts.observation, alive, ret, viol, length, seen,
-                 costs)  # fmt: skip
+        carry = ((states, memory, (policy_memory, left)), ts.observation, alive, ret, viol,
+                 length, seen, costs)  # fmt: skip
         return carry, None
 
-    policy_memory = () if memory is None else memory
+    budget = () if cost_limit is None else jnp.ones((num_episodes,), jnp.float32)
+    policy_memory = (() if memory is None else memory, budget)
     memory = () if shield is None else shield.start(ts.observation)
     seen = jnp.zeros_like(track(states))
     costs = (zeros_f, zeros_i, zeros_i)  # episode cost, current costly run, longest run

@@ -163,6 +163,8 @@ class ActorCritic(nn.Module):
     film_codes: bool = False
     # the heads read the observation features beside the memory (recurrent only)
     memory_skip: bool = False
+    # the observation includes the remaining safety budget (Saute), a float beside the direction
+    budget_input: bool = False
 
     def setup(self):
         relu_init = _ortho(np.sqrt(2))
@@ -199,22 +201,24 @@ class ActorCritic(nn.Module):
         """Width of the recurrent memory (1, a placeholder, without one)."""
         return self.hidden if self.recurrent else 1
 
-    def __call__(self, image, direction, lang):
+    def __call__(self, image, direction, lang, budget=None):
         """``(logits, value, cost_value)`` of a memoryless network."""
         if self.recurrent:
             raise ValueError("a recurrent ActorCritic is called with step(..., memory)")
-        logits, value, cost_value, _ = self.step(image, direction, lang, None)
+        logits, value, cost_value, _ = self.step(image, direction, lang, None, budget)
         return logits, value, cost_value
 
-    def step(self, image, direction, lang, memory):
+    def step(self, image, direction, lang, memory, budget=None):
         """``(logits, value, cost_value, memory)``: one step, from the memory of the episode's
         previous steps (zeros at its start; (B, :attr:`memory_dim`)). Without recurrence the
         memory passes through unchanged."""
-        return self.heads(self.observe(image, direction, lang), memory)
+        return self.heads(self.observe(image, direction, lang, budget), memory)
 
-    def observe(self, image, direction, lang):
+    def observe(self, image, direction, lang, budget=None):
         """The sentence-modulated observation features (B, hidden): everything before the
-        memory, so a recurrent update computes it for a whole sequence at once."""
+        memory, so a recurrent update computes it for a whole sequence at once. With
+        ``budget_input`` the observation also holds ``budget`` float32 (B,), the remaining
+        safety budget (None: all of it, 1)."""
         cell_film, hidden_film, code_film = jnp.split(
             lang, [2 * self.cell_dim, 2 * self.cell_dim + 2 * self.hidden], axis=-1
         )
@@ -226,7 +230,11 @@ class ActorCritic(nn.Module):
         for conv in self.convs:
             x = nn.relu(conv(x))
         x = x.reshape(x.shape[:-3] + (-1,))
-        x = jnp.concatenate([x, jax.nn.one_hot(direction, 4)], axis=-1)
+        parts = [x, jax.nn.one_hot(direction, 4)]
+        if self.budget_input:
+            budget = jnp.ones(direction.shape) if budget is None else budget
+            parts.append(budget[..., None].astype(x.dtype))
+        x = jnp.concatenate(parts, axis=-1)
         scale, shift = jnp.split(hidden_film, 2, axis=-1)
         return jnp.tanh(self.obs_proj(x) * (1.0 + scale) + shift)
 
@@ -290,20 +298,38 @@ def table_features(network: ActorCritic, params, tokens: jax.Array | None) -> ja
     return network.apply(params, tokens, method=ActorCritic.sentence_features)
 
 
-def apply_policy(network: ActorCritic, params, lang_table, image, direction, sentence, memory):
+def apply_policy(
+    network: ActorCritic, params, lang_table, image, direction, sentence, memory, budget=None
+):
     """``network.step`` on a batch whose sentences are rows ``sentence`` (B,) of
-    ``lang_table``: ``(logits, value, cost_value, memory)``.
+    ``lang_table`` (and, for a Saute policy, remaining budgets ``budget`` (B,)):
+    ``(logits, value, cost_value, memory)``.
 
     The row is selected by a one-hot matmul rather than a gather: its gradient is a matmul,
     not a scatter (slow on CPU).
     """
     lang = table_rows(lang_table, sentence)
-    return network.apply(params, image, direction, lang, memory, method=ActorCritic.step)
+    return network.apply(params, image, direction, lang, memory, budget, method=ActorCritic.step)
 
 
 def table_rows(lang_table: jax.Array, sentence: jax.Array) -> jax.Array:
     """Rows ``sentence`` (B,) of ``lang_table`` (K, D), selected by a one-hot matmul."""
     return jax.nn.one_hot(sentence, lang_table.shape[0], dtype=lang_table.dtype) @ lang_table
+
+
+VALUE_HEADS = ("critic", "cost_critic")  # the modules of the value and cost-value heads
+
+
+def value_heads_only(grads):
+    """Gradients of an :class:`ActorCritic`'s parameters with zeros outside
+    :data:`VALUE_HEADS`: a step on them fits the values without moving the policy (CPO's
+    value fitting, after its trust-region step)."""
+    return {
+        "params": {
+            name: tree if name in VALUE_HEADS else jax.tree.map(jnp.zeros_like, tree)
+            for name, tree in grads["params"].items()
+        }
+    }
 
 
 def start_memory(network: ActorCritic, batch: int) -> jax.Array:

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from agents import shield as shield_mod
 from agents.checker_carry import embed
 from agents.config import PPOConfig
-from agents.evaluation import cost_of, violation_of
+from agents.evaluation import cost_of, spend, violation_of
 from checker.protocol import CheckerProtocol
 from jaxgrid import language
 from jaxgrid.constants import EMPTY, FORWARD
@@ -48,6 +48,9 @@ class EnvCarry(struct.PyTreeNode):
     # float32 (E, M): the policy's memory of the episode so far (zeros at its start; M = 1,
     # a placeholder, for a memoryless policy)
     memory: jax.Array = None
+    # float32 (E,): Saute's remaining safety budget of the episode (1 at its start; None in
+    # the other modes)
+    budget: jax.Array | None = None
 
 
 class Transition(struct.PyTreeNode):
@@ -59,13 +62,16 @@ class Transition(struct.PyTreeNode):
     value: jax.Array
     cost_value: jax.Array
     reward: jax.Array  # shaped training reward, truncation bootstrap included
-    cost: jax.Array  # Lagrangian cost, truncation bootstrap included
+    cost: jax.Array  # the constrained modes' cost, truncation bootstrap included
     done: jax.Array
     allowed: jax.Array | None = None  # bool (E, A): the shield's mask (shield modes only)
+    budget: jax.Array | None = None  # float32 (E,): the observed safety budget (saute only)
+    # float32 (E, A): the acting policy's logits, where the update bounds the KL to it
+    logits: jax.Array | None = None
 
 
-# (image, direction, sentence row, memory) -> (logits, value, cost_value, memory), parameters
-# bound (agents.networks.apply_policy).
+# (image, direction, sentence row, memory[, budget]) -> (logits, value, cost_value, memory),
+# parameters bound (agents.networks.apply_policy).
 BoundPolicy = Callable[..., tuple[jax.Array, jax.Array, jax.Array, jax.Array]]
 
 
@@ -145,6 +151,7 @@ def env_step(
     penalty: jax.Array | float,
     novelty: jax.Array | float,
     threshold: jax.Array | float | None = None,
+    limit: jax.Array | float | None = None,
 ) -> tuple[EnvCarry, tuple[Transition, dict]]:
     """One rollout step of every env: act, step, shape the reward, bootstrap truncations.
 
@@ -153,20 +160,25 @@ def env_step(
     ``penalty`` times the ground-truth violation (``shaped``) or the checker's alarm
     (``checker``; its probability with ``soft_checker``; with ``alarm_onset`` only where the
     previous step of the episode did not alarm; with ``alarm_forward`` the previous step's
-    alarm where this step moves forward); ``lagrangian`` puts the alarm in the cost
-    instead. The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to
-    the episode (with ``novelty_changes``, also for a cell's first change in it). With a
-    ``shield`` (:class:`agents.shield.Shield`) the action is sampled from the policy
-    restricted to the allowed actions, and the mask is kept in the transition.
+    alarm where this step moves forward); the modes with a cost critic (``lagrangian``) put
+    that signal in the cost instead, or with ``cost_source="monitor"`` the monitor's cost.
+    The novelty bonus pays ``novelty`` for a (cell, carrying) pair new to the episode (with
+    ``novelty_changes``, also for a cell's first change in it). With a ``shield``
+    (:class:`agents.shield.Shield`) the action is sampled from the policy restricted to the
+    allowed actions, and the mask is kept in the transition.
+    In ``saute`` the cost spends the episode's safety budget (:func:`agents.evaluation.spend`,
+    at cost limit ``limit``; None: ``cost_limit``), which the policy observes; once it is
+    overspent, every step's training reward is ``-saute_penalty``.
     Where an episode was cut by the time limit (not terminated), the reward and
     cost add ``gamma`` times the final observation's values, so GAE treats the step as
-    terminal without losing the future. ``threshold`` (None: ``checker_threshold``) may be a
-    traced per-agent value. Returns the next carry and (transition, statistics).
+    terminal without losing the future. ``threshold`` (None: ``checker_threshold``) and
+    ``limit`` may be traced per-agent values. Returns the next carry and (transition,
+    statistics).
     """
     c = config
     obs = carry.obs
     logits, value, cost_value, memory = policy(
-        obs["image"], obs["direction"], carry.sentence, carry.memory
+        obs["image"], obs["direction"], carry.sentence, carry.memory, carry.budget
     )
     # The checker's sentence codes: the table is encoded once (XLA hoists it out of the scan).
     codes = None if checker is None else checker.encode_language(table[:, :words])
@@ -202,8 +214,8 @@ def env_step(
         reward = reward - penalty * violation.astype(jnp.float32)
     elif c.reward_mode == "checker":
         reward = reward - penalty * signal
-    elif c.reward_mode == "lagrangian":
-        cost = signal
+    elif c.mode.cost_critic or c.mode.budget:
+        cost = signal if c.cost_from == "checker" else cost_of(ts)
     if c.end_episode and c.reward_mode in ("shaped", "checker"):
         # The learner ends the episode where the signal fired: a terminal step, then a fresh
         # episode, as if the env had ended it.
@@ -231,6 +243,10 @@ def env_step(
         new = jnp.minimum(new, left) + jnp.where(ts.terminated & (ts.reward > 0), left, 0.0)
     bonus = novelty * new  # novelty is 0 when the bonus is off
     reward = reward + bonus
+    budget = carry.budget
+    if c.mode.budget:  # the step's cost spends the budget; overspent, the reward is cut
+        budget = spend(budget, cost, c.cost_limit if limit is None else limit)
+        reward = jnp.where(budget < 0, -c.saute_penalty, reward)
     start = hit.at[:, env.width * env.height * 2 :].set(False)  # a new episode: no change yet
     visited = jnp.where(done[:, None], start, carry.visited | hit)
 
@@ -243,14 +259,15 @@ def env_step(
         return v, cv
 
     zeros = jnp.zeros_like(value)
-    rows = (final["image"], final["direction"], carry.sentence, memory)
+    rows = (final["image"], final["direction"], carry.sentence, memory, budget)
     v_final, cv_final = masked_map(truncated, final_values, rows, (zeros, zeros))
     trunc = truncated.astype(jnp.float32)
     transition = Transition(
         image=obs["image"], direction=obs["direction"], sentence=carry.sentence,
         action=action, log_prob=log_prob, value=value, cost_value=cost_value,
         reward=reward + c.gamma * trunc * v_final, cost=cost + c.gamma * trunc * cv_final,
-        done=done, allowed=allowed,
+        done=done, allowed=allowed, budget=carry.budget,
+        logits=None if c.mode.policy_update == "ppo" else logits,
     )  # fmt: skip
     ep_return = carry.ep_return + ts.reward
     ep_length = carry.ep_length + 1
@@ -270,5 +287,6 @@ def env_step(
         state=states, obs=ts.observation, sentence=sentence, frames=frames, visited=visited,
         ep_return=jnp.where(done, 0.0, ep_return), ep_length=jnp.where(done, 0, ep_length),
         alarmed=(alarm > 0) & ~done, memory=jnp.where(done[:, None], 0.0, memory),
+        budget=None if budget is None else jnp.where(done, 1.0, budget),
     )  # fmt: skip
     return carry, (transition, stats)

@@ -6,7 +6,11 @@ One update is
    ``num_envs`` auto-resetting environments (policy, checker, reward shaping, truncation
    bootstrap);
 2. :func:`agents.losses.gae`;
-3. ``update_epochs`` x ``num_minibatches`` steps of :func:`agents.losses.ppo_loss`.
+3. ``update_epochs`` x ``num_minibatches`` steps of :func:`agents.losses.ppo_loss` (in
+   ``cpo``, after :func:`agents.losses.cpo_step`, the value heads' only);
+4. the cost's Lagrange multiplier (a gradient step, or the PID controller's).
+
+One thing, the learner of every reward mode (:data:`agents.config.MODES`), hence its length.
 
 ``train(key)`` scans :attr:`PPOConfig.num_chunks` chunks of ``eval_every`` updates, each
 followed by an evaluation on fixed seeds; it is pure, so ``jax.jit(jax.vmap(train))`` runs
@@ -32,13 +36,14 @@ from jax import lax
 from agents import checker_carry, rollout
 from agents.config import SWEEPABLE, PPOConfig, check_checker
 from agents.evaluation import play_episodes, summarise
-from agents.losses import gae, ppo_loss, shuffle
+from agents.losses import PIDState, cpo_step, gae, pid_update, ppo_loss, shuffle
 from agents.networks import (
     ActorCritic,
     apply_policy,
     start_memory,
     table_features,
     table_rows,
+    value_heads_only,
 )
 from agents.rollout import EnvCarry, Transition
 from agents.shield import make_shield, mask_logits
@@ -52,7 +57,7 @@ from jaxgrid.wrappers import BatchedAutoReset
 class RunnerState(struct.PyTreeNode):
     params: Any
     opt_state: Any
-    lagrange: jax.Array  # float32 multiplier of the Lagrangian mode (0 otherwise)
+    lagrange: jax.Array  # float32 Lagrange multiplier of the cost (0 in modes without one)
     key: jax.Array
     update: jax.Array  # int32 number of updates done
     env: EnvCarry
@@ -61,6 +66,9 @@ class RunnerState(struct.PyTreeNode):
     hparams: dict = struct.field(default_factory=dict)
     # float32 training success rate of the last update (read only with a penalty gate)
     success: jax.Array = struct.field(default_factory=lambda: jnp.zeros((), jnp.float32))
+    # the PID Lagrangian's controller memory (None in the other modes: no leaves, so their
+    # state and checkpoints are as they were)
+    pid: PIDState | None = None
 
 
 class Learner(struct.PyTreeNode):
@@ -109,9 +117,11 @@ class Learner(struct.PyTreeNode):
         steps that begin an episode (memory reset); the memory is recomputed through time,
         so gradients reach the steps that wrote it.
         """
+        budget = mb.get("budget")  # Saute's observed budget (None in the other modes)
         if not self.config.recurrent:
             memory = start_memory(self.network, mb["image"].shape[0])
-            return self.policy(params)(mb["image"], mb["direction"], mb["sentence"], memory)[:3]
+            policy = self.policy(params)
+            return policy(mb["image"], mb["direction"], mb["sentence"], memory, budget)[:3]
         # The observation features and the memory's input terms of every step at once (batched
         # passes); only the memory runs step by step, the heads again batched.
         lang_table = self.lang_table(params)
@@ -119,9 +129,11 @@ class Learner(struct.PyTreeNode):
         rows = flat(mb["sentence"])
         lang = table_rows(lang_table, rows)
         net = self.network
+        budget = None if budget is None else flat(budget)
         feats = net.apply(
-            params, flat(mb["image"]), flat(mb["direction"]), lang, method=ActorCritic.observe
-        ).reshape(mb["sentence"].shape + (-1,))
+            params, flat(mb["image"]), flat(mb["direction"]), lang, budget,
+            method=ActorCritic.observe,
+        ).reshape(mb["sentence"].shape + (-1,))  # fmt: skip
 
         inputs = net.apply(params, feats, method=ActorCritic.memory_inputs)
 
@@ -197,22 +209,24 @@ class Learner(struct.PyTreeNode):
             lang = self.checker.encode_language(self.table[:, : self.words])[sentence]
         emb = checker_carry.embed(self.checker, obs["image"])
         frames = checker_carry.start_memory(self.checker, emb, lang)
-        zeros = jnp.zeros((c.num_envs,), jnp.float32)
+        zeros, zero = jnp.zeros((c.num_envs,), jnp.float32), jnp.float32(0.0)
         carry = EnvCarry(
             state=states, obs=obs, sentence=sentence,
             frames=frames, visited=rollout.config_visits(states, env, c),
             ep_return=zeros, ep_length=zeros.astype(jnp.int32), alarmed=zeros > 0,
             memory=start_memory(self.network, c.num_envs),
+            budget=zeros + 1.0 if c.mode.budget else None,
         )  # fmt: skip
         return RunnerState(
             params=params,
             opt_state=self.optimizer.init(params),
-            lagrange=jnp.float32(c.lagrangian_init if c.reward_mode == "lagrangian" else 0.0),
+            lagrange=jnp.float32(c.lagrangian_init if c.mode.multiplier else 0.0),
             key=key,
             update=jnp.zeros((), jnp.int32),
             env=carry,
             hparams={k: jnp.asarray(v, jnp.float32) for k, v in hparams.items()},
             success=jnp.zeros((), jnp.float32),
+            pid=PIDState(zero, zero) if c.mode.multiplier == "pid" else None,
         )
 
     # -- rollout and update -------------------------------------------------------------
@@ -227,6 +241,7 @@ class Learner(struct.PyTreeNode):
             checker=self.checker, shield=self.shield_for(runner.hparams),
             penalty=self.penalty_of(runner), novelty=self.novelty_at(runner.update),
             threshold=self.hparam(runner, "checker_threshold"),
+            limit=self.hparam(runner, "cost_limit"),
         )  # fmt: skip
         keys = jax.random.split(key, self.config.num_steps)
         env, (traj, stats) = lax.scan(step, runner.env, keys)
@@ -238,7 +253,7 @@ class Learner(struct.PyTreeNode):
         lang_table = self.lang_table(runner.params) if lang_table is None else lang_table
         env, traj, stats = self.rollout(runner, key, lang_table)
         _, last_value, last_cost_value, _ = self.policy(runner.params, lang_table)(
-            env.obs["image"], env.obs["direction"], env.sentence, env.memory
+            env.obs["image"], env.obs["direction"], env.sentence, env.memory, env.budget
         )
         batch = self.training_batch(traj, last_value, last_cost_value, runner.env.memory)
         return env, traj, stats, batch
@@ -255,13 +270,28 @@ class Learner(struct.PyTreeNode):
         # A swept learning rate scales the optimiser's step (Adam's step is linear in it).
         lr_scale = runner.hparams["lr"] / c.lr if "lr" in runner.hparams else None
 
-        def loss(params, mb, lagrange):
-            out = self.forward(params, mb)
+        def samples(mb):  # per-sample arrays, flat (B, ...)
             flat = {k: v for k, v in mb.items() if k not in ("memory0", "start")}
             if c.recurrent:
                 flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), flat)
+            return flat
+
+        def loss(params, mb, lagrange):
+            out = self.forward(params, mb)
             policy = lambda p, *x: out  # noqa: E731  (computed from ``params`` above)
-            return ppo_loss(policy, params, flat, lagrange, c, blocked_weight, ent_coef)
+            return ppo_loss(policy, params, samples(mb), lagrange, c, blocked_weight, ent_coef)
+
+        step_stats = {}
+        if c.mode.policy_update == "cpo":
+            # The trust-region step moves the policy; the epochs below then fit the value
+            # heads alone, on its features, so that they move it no further. The constraint's
+            # excess is per step, the surrogates' scale: per episode, over the mean length.
+            excess = self.episode_cost(stats) - self.hparam(runner, "cost_limit")
+            excess = excess * jnp.maximum(stats["episodes"].sum(), 1) / c.batch_size
+            logits_of = lambda p: self.forward(p, batch)[0]  # noqa: E731
+            params, step_stats = cpo_step(
+                logits_of, params, samples(batch), excess, c, self.fisher_part(batch)
+            )
 
         def epoch(carry, k):
             params, opt_state = carry
@@ -270,6 +300,8 @@ class Learner(struct.PyTreeNode):
             def minibatch(carry, mb):
                 params, opt_state = carry
                 grads, info = jax.grad(loss, has_aux=True)(params, mb, runner.lagrange)
+                if c.mode.policy_update == "cpo":
+                    grads = value_heads_only(grads)
                 updates, opt_state = self.optimizer.update(grads, opt_state, params)
                 if lr_scale is not None:
                     updates = jax.tree.map(lambda u: u * lr_scale, updates)
@@ -280,16 +312,33 @@ class Learner(struct.PyTreeNode):
         (params, opt_state), info = lax.scan(
             epoch, (params, runner.opt_state), jax.random.split(perm_key, c.update_epochs)
         )
-        lagrange, metrics = self._statistics(runner, info, stats)
+        (lagrange, pid), metrics = self._statistics(runner, info, stats)
+        metrics.update(step_stats)
         runner = runner.replace(
             params=params, opt_state=opt_state, lagrange=lagrange, key=key,
-            update=runner.update + 1, env=env,
+            update=runner.update + 1, env=env, pid=pid,
         )  # fmt: skip
         if c.penalty_gate > 0:  # the gate's success rate (held where no episode finished)
             episodes = metrics["episodes"]
             success = metrics["successes"] / jnp.maximum(episodes, 1)
             runner = runner.replace(success=jnp.where(episodes > 0, success, runner.success))
         return runner, metrics
+
+    def fisher_part(self, batch: dict):
+        """CPO's Fisher-vector products average over every ``cpo_fisher_every``-th sample
+        (whole env sequences of a recurrent policy): ``(logits_of, old logits)`` of that part,
+        or None for the whole batch."""
+        every = self.config.cpo_fisher_every
+        if every == 1:
+            return None
+        if self.config.recurrent:
+            part = {k: v[:, ::every] for k, v in batch.items() if k != "memory0"}
+            part["memory0"] = batch["memory0"][::every]
+            old = part["logits"].reshape((-1,) + part["logits"].shape[2:])
+        else:
+            part = jax.tree.map(lambda x: x[::every], batch)
+            old = part["logits"]
+        return (lambda p: self.forward(p, part)[0]), old
 
     def minibatches(self, batch: dict, key: jax.Array) -> dict:
         """``batch`` shuffled and split into ``num_minibatches`` (leading axis): samples
@@ -324,7 +373,11 @@ class Learner(struct.PyTreeNode):
         }  # fmt: skip
         if traj.allowed is not None:
             batch["allowed"] = traj.allowed
-        if c.reward_mode == "lagrangian":
+        if traj.budget is not None:
+            batch["budget"] = traj.budget
+        if traj.logits is not None:
+            batch["logits"] = traj.logits
+        if c.mode.cost_critic:
             cadv, ctarget = gae(
                 traj.cost_value, traj.cost, traj.done, last_cost_value, c.gamma, c.gae_lambda
             )
@@ -336,19 +389,35 @@ class Learner(struct.PyTreeNode):
             return {**batch, "start": start, "memory0": memory0}
         return jax.tree.map(lambda x: x.reshape((c.batch_size,) + x.shape[2:]), batch)
 
+    def episode_cost(self, stats: dict) -> jax.Array:
+        """A rollout's cost per episode: its cost over the episodes it finished. The
+        constraints hold it, so that they react to what a constraint budget is about, and are
+        not diluted by long safe stretches."""
+        return stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
+
     def _statistics(self, runner: RunnerState, info: dict, stats: dict):
-        """The next Lagrange multiplier and the update's metrics."""
+        """``((next Lagrange multiplier, next PID state), the update's metrics)``."""
         c = self.config
         cost_rate = stats["cost"].sum() / c.batch_size
-        # Cost per episode (rollout cost over the episodes it finished): the multiplier reacts
-        # to what a constraint budget is about, and is not diluted by long safe stretches.
-        episode_cost = stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
-        lagrange = runner.lagrange
-        if c.reward_mode == "lagrangian":
-            step = c.lagrangian_lr * (episode_cost - self.hparam(runner, "cost_target"))
-            # Held at its start value until the constraint switches on (whatever ``penalty``).
-            active = self.constraint_ramp(runner.update) > 0
+        episode_cost = self.episode_cost(stats)
+        lagrange, pid = runner.lagrange, runner.pid
+        # Held at its start value until the constraint switches on (whatever ``penalty``).
+        active = self.constraint_ramp(runner.update) > 0
+        limit = self.hparam(runner, "cost_limit")
+        if c.mode.multiplier == "gradient":
+            step = c.lagrangian_lr * (episode_cost - limit)
             lagrange = jnp.where(active, jnp.maximum(0.0, lagrange + step), lagrange)
+            if c.mode.policy_update == "focops":
+                lagrange = jnp.minimum(lagrange, c.focops_nu_max)
+        elif c.mode.multiplier == "pid":
+            # The first update has no previous cost: no derivative. The controller follows
+            # the cost from the start, and moves the multiplier once the constraint is on.
+            previous = jnp.where(runner.update == 0, episode_cost, pid.cost)
+            new, moved = pid_update(
+                pid.replace(cost=previous), episode_cost, limit, c.pid_kp, c.pid_ki, c.pid_kd
+            )
+            lagrange = jnp.where(active, new, lagrange)
+            pid = moved.replace(integral=jnp.where(active, moved.integral, pid.integral))
         metrics = jax.tree.map(jnp.mean, info)
         totals = jax.tree.map(jnp.sum, stats)
         metrics.update(
@@ -361,15 +430,17 @@ class Learner(struct.PyTreeNode):
             env_cost=totals["env_cost"],  # the env's info["cost"], whatever the mode uses
             lagrange=lagrange,
         )
-        return lagrange, metrics
+        return (lagrange, pid), metrics
 
     # -- evaluation ---------------------------------------------------------------------
-    def act(self, params, obs, key, allowed=None, memory=None):
+    def act(self, params, obs, key, allowed=None, memory=None, budget=None):
         """Sample actions for a batch of observations (any sentence: the GRU runs on it),
         among the ``allowed`` ones (bool (B, A)) when given.
 
         A recurrent policy needs ``memory`` (B, M) (zeros at an episode's start,
-        :func:`agents.networks.start_memory`) and returns ``(actions, memory)``.
+        :func:`agents.networks.start_memory`) and returns ``(actions, memory)``. A Saute
+        policy reads ``budget`` (B,), the episode's remaining safety budget
+        (:func:`agents.evaluation.spend`; None: all of it, as at an episode's start).
         """
         if self.config.recurrent and memory is None:
             raise ValueError("a recurrent policy acts with its memory: act(..., memory=...)")
@@ -382,7 +453,7 @@ class Learner(struct.PyTreeNode):
         given = memory is not None
         memory = start_memory(self.network, batch) if memory is None else memory
         logits, _, _, memory = self.network.apply(
-            params, obs["image"], obs["direction"], lang, memory, method=ActorCritic.step
+            params, obs["image"], obs["direction"], lang, memory, budget, method=ActorCritic.step
         )
         if allowed is not None:
             logits = mask_logits(logits, allowed)
@@ -396,12 +467,18 @@ class Learner(struct.PyTreeNode):
         """Per-episode results of :func:`agents.evaluation.play_episodes` (fixed ``key`` =
         fixed episodes) on the raw env (or ``env``): in the shield modes with the shield on
         (as deployed; at the agent's swept threshold in ``hparams``, if any) unless
-        ``shielded`` is False (the policy alone). ``track``: as in ``play_episodes``."""
+        ``shielded`` is False (the policy alone). ``track``: as in ``play_episodes``. A Saute
+        policy's budget is spent by the monitor's cost, at the agent's ``cost_limit``
+        (evaluation runs no checker)."""
         env = self.env if env is None else env
         memory = start_memory(self.network, num_episodes) if self.config.recurrent else None
+        limit = None
+        if self.config.mode.budget:
+            limit = (hparams or {}).get("cost_limit", self.config.cost_limit)
         if self.shield is None or not shielded:
-            act = lambda o, k, *m: self.act(params, o, k, None, *m)  # noqa: E731
-            return play_episodes(env, act, key, num_episodes, memory=memory, track=track)
+            act = lambda o, k, *m, **b: self.act(params, o, k, None, *m, **b)  # noqa: E731
+            return play_episodes(env, act, key, num_episodes, memory=memory, track=track,
+                                 cost_limit=limit)  # fmt: skip
         shield = self.shield_for(hparams or {}).replace(env=env)
         act = lambda o, k, allowed, *m: self.act(params, o, k, allowed, *m)  # noqa: E731
         return play_episodes(env, act, key, num_episodes, shield=shield, memory=memory,
@@ -457,6 +534,7 @@ def make_learner(config: PPOConfig, checker=None) -> Learner:
             recurrent=config.recurrent,
             film_codes=config.film_codes,
             memory_skip=config.memory_skip,
+            budget_input=config.mode.budget,
         ),
         optimizer=optimizer,
         checker=checker,

@@ -24,7 +24,7 @@ from typing import Protocol
 import jax
 
 from agents.checkpoint import ResumeError
-from agents.config import PPOConfig
+from agents.config import RENAMED, PPOConfig
 from agents.networks import start_memory
 from agents.runner import run as run_ppo
 from agents.train import make_learner
@@ -100,6 +100,9 @@ def prepare_out(cfg) -> Path:
         if "memory_checker.label" in theirs:  # recorded before it was named lookahead
             label = theirs.pop("memory_checker.label")
             theirs["memory_checker.lookahead"] = LABEL_LOOKAHEADS.get(label, label)
+        for name, new in RENAMED.items():  # PPO settings recorded under an older name
+            if f"ppo.{name}" in theirs:
+                theirs[f"ppo.{new}"] = theirs.pop(f"ppo.{name}")
         diff = sorted(
             k for k in mine.keys() | theirs.keys()
             if mine.get(k) != theirs.get(k)

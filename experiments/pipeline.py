@@ -49,7 +49,7 @@ from typing import Annotated
 
 from tyro.constructors import PrimitiveConstructorSpec
 
-from agents.config import REWARD_MODES, PPOConfig, check_sweep
+from agents.config import PAPER_MODES, REWARD_MODES, PPOConfig, check_sweep
 from checker import cli
 from checker.train import CheckerTrainConfig, MemoryTrainConfig
 from experiments import assembly, checker_phases, phases, scheduling
@@ -83,10 +83,10 @@ class ExperimentConfig:
     checker_env_id: str | None = None  # the checker's scenario; None: the agents' (no flag)
     out: str | None = None  # output directory; None: runs/<experiment>/<date-time>
     checker: str | None = None  # a trained checker's directory, reused (skips phases a-c)
-    modes: Modes = REWARD_MODES  # the reward modes compared
+    modes: Modes = PAPER_MODES  # the reward modes compared (any of REWARD_MODES)
     seeds: int = 5  # agents per mode, trained at once: seeds --seed, --seed + 1, ...
     # NAME=V1,V2,...: every seed runs with every value, all in one compiled program per mode
-    # (NAME: penalty, checker_threshold, cost_target, ent_coef or lr); results per value
+    # (NAME: penalty, checker_threshold, cost_limit, ent_coef or lr); results per value
     sweep: str | None = None
     behaviour_steps: int = 300_000  # env steps of the behaviour agent (phase a)
     checker_samples: int = 12_000  # windows of checker data (phase b)

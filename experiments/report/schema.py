@@ -63,6 +63,10 @@ MODE_LABELS: dict[str, str] = {
     "shaped": "ground-truth shaped",
     "none": "unconstrained",
     "lagrangian": "PPO-Lagrangian",
+    "pid_lagrangian": "PID Lagrangian",
+    "saute": "Saute",
+    "cpo": "CPO",
+    "focops": "FOCOPS",
     "shield": "checker shield",
     "shield_monitor": "monitor shield",
 }

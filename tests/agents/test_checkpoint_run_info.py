@@ -13,7 +13,7 @@ import pytest
 from helpers.agents_cases import SEEDS, TINY
 
 from agents import checkpoint
-from agents.config import PPOConfig
+from agents.config import PPOConfig, check_sweep
 
 
 def test_run_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
@@ -57,3 +57,22 @@ def test_a_run_is_finished_where_the_digests_list_its_last_chunk(tmp_path):
     assert not checkpoint.finished(tmp_path, TINY)
     digests.write_text(json.dumps({"1": {}, "2": {}}))
     assert checkpoint.finished(tmp_path, TINY)
+
+
+def test_a_run_saved_under_a_renamed_setting_reads_under_its_new_name(tmp_path):
+    """``run.json`` written when ``cost_limit`` was named ``cost_target`` (config and sweep):
+    it resumes with the same value, refuses another, and reads back under the new name."""
+    limited = dataclasses.replace(TINY, cost_limit=0.25)
+    sweep = {"cost_limit": [0.1, 0.2]}
+    checkpoint.write_run_info(tmp_path, limited, list(SEEDS), sweep=sweep)
+    saved = json.loads((tmp_path / "run.json").read_text())
+    saved["config"]["cost_target"] = saved["config"].pop("cost_limit")
+    saved["sweep"] = {"cost_target": saved["sweep"]["cost_limit"]}
+    (tmp_path / "run.json").write_text(json.dumps(saved))
+    checkpoint.check_run_info(tmp_path, limited, list(SEEDS), sweep=sweep)
+    with pytest.raises(ValueError, match="cost_limit"):
+        checkpoint.check_run_info(tmp_path, TINY, list(SEEDS), sweep=sweep)
+    info = checkpoint.read_run_info(tmp_path)
+    assert info["sweep"] == sweep and "cost_target" not in info["config"]
+    assert checkpoint.saved_config(info).cost_limit == 0.25
+    assert check_sweep({"cost_target": (0.1, 0.2)}) == {"cost_limit": (0.1, 0.2)}

@@ -46,11 +46,41 @@ from checker.model import TrainedChecker
         (dict(conv_channels=(16, 0)), "conv_channels"),
         (dict(conv_channels=16), "conv_channels"),
         (dict(env_kwargs=(("max_steps", [3]),)), "env_kwargs"),
+        (dict(cost_limit=-0.1), "cost_limit"),
+        (dict(pid_kp=-1.0), "pid_kp"),
+        (dict(saute_penalty=-1.0), "saute_penalty"),
+        (dict(focops_lam=0.0), "focops_lam"),
+        (dict(focops_max_kl=0.0), "focops_max_kl"),
+        (dict(focops_nu_max=-1.0), "focops_nu_max"),
+        (dict(cpo_max_kl=0.0), "cpo_max_kl"),
+        (dict(cpo_cg_iters=0), "cpo_cg_iters"),
+        (dict(cpo_damping=-0.1), "cpo_damping"),
+        (dict(cpo_fisher_every=0), "cpo_fisher_every"),
+        (dict(reward_mode="lagrangian", cost_source="oracle"), "cost_source"),
+        # a cost source the mode cannot use: its own is fixed, or it has no cost
+        (dict(reward_mode="shield_monitor", cost_source="checker"), "cost_source='checker'"),
+        (dict(reward_mode="shield", cost_source="monitor"), "cost_source='monitor'"),
+        (dict(reward_mode="shaped", cost_source="checker"), "cost_source='checker'"),
+        (dict(reward_mode="checker", cost_source="monitor"), "cost_source='monitor'"),
+        (dict(reward_mode="none", cost_source="monitor"), "has no cost"),
     ],
 )
 def test_config_rejects_bad_values(kwargs, field):
     with pytest.raises(ValueError, match=field):
         dataclasses.replace(TINY, **kwargs)
+
+
+def test_each_mode_takes_its_cost_from_its_own_source_unless_told():
+    """``cost_source`` None is the mode's own source; a constrained mode takes either."""
+    own = {"checker": "checker", "shaped": "monitor", "none": None, "lagrangian": "checker",
+           "shield": "checker", "shield_monitor": "monitor"}  # fmt: skip
+    for mode, source in own.items():
+        config = dataclasses.replace(TINY, reward_mode=mode)
+        assert config.cost_from == source and config.uses_checker == (source == "checker")
+        assert config.shield_judge == (source if mode.startswith("shield") else None)
+    monitored = dataclasses.replace(TINY, reward_mode="lagrangian", cost_source="monitor")
+    assert monitored.cost_from == "monitor" and not monitored.uses_checker
+    assert make_learner(monitored).checker is None  # no checker needed, none kept
 
 
 def test_config_accepts_edges_and_normalises_env_kwargs():
@@ -65,7 +95,7 @@ def test_bad_env_and_checker_fail_before_compiling():
     """No XLA compilation at all (counted through ``jax.monitoring``) before the error."""
     wide = TrainedChecker(params={}, config=dataclasses.replace(CHECKER_CONFIG, view_size=7))
     with count_compiles() as compiled:
-        for mode in ("checker", "lagrangian"):
+        for mode in ("checker", "lagrangian", "pid_lagrangian", "saute", "focops", "cpo"):
             config = dataclasses.replace(TINY, reward_mode=mode)
             for build in (make_learner, make_train):
                 with pytest.raises(ValueError, match="reward_mode='" + mode):

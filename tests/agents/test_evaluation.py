@@ -1,6 +1,6 @@
 """``agents.evaluation``: fixed keys give fixed episodes; the oracle succeeds without
 violations and earns MiniGrid's reward once per episode; the ``done`` action never
-succeeds."""
+succeeds; a Saute budget is spent as the limit's share of each cost."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 from helpers.agents_cases import fast_jit
 
 import jaxgrid
-from agents.evaluation import play_episodes, summarise
+from agents.evaluation import play_episodes, spend, summarise
 from jaxgrid.oracle import oracle_action
 from jaxgrid.types import TimeStep
 
@@ -213,3 +213,12 @@ def test_cost_metrics_match_the_costly_steps_of_hazard_rooms_episodes():
     np.testing.assert_array_equal(ep["cost"], costly.sum(axis=1))
     np.testing.assert_array_equal(ep["costly_run"], [longest(f) for f in costly])
     assert ep["costly_run"].max() >= 2  # the case an average cost hides does occur
+
+
+def test_a_budget_is_spent_as_the_limits_share_of_each_cost():
+    """Each cost spends ``cost / limit`` of the budget, which stays in [-1, 1]; a limit of 0
+    is spent by any cost."""
+    budget = np.array([1.0, 0.5, 0.5, -0.9, 1.0], np.float32)
+    cost = np.array([0.0, 1.0, 0.25, 1.0, 1.0], np.float32)
+    np.testing.assert_allclose(spend(budget, cost, 2.0), [1.0, 0.0, 0.375, -1.0, 0.5])
+    np.testing.assert_array_equal(spend(budget, cost, 0.0), [1.0, -1.0, -1.0, -1.0, -1.0])

@@ -373,3 +373,33 @@ def test_alarm_forward_charges_the_next_forward_step(rollouts, tiny_checker):
     _assert_charged(c, tr, ref, charged, prev_prob)
     with pytest.raises(ValueError, match="alarm_forward"):
         dataclasses.replace(c, alarm_onset=True)
+
+
+def test_the_monitor_cost_is_a_constrained_modes_cost():
+    """With ``cost_source="monitor"`` the Lagrangian's cost is the monitor's ``info["cost"]``
+    of each step (the replayed env's; plus the truncation bootstrap where an episode was
+    cut), with no checker at all."""
+    config = dataclasses.replace(
+        TINY, env_id="TwoRoomsLava-v0", env_kwargs=(("max_steps", 8),), num_envs=16,
+        num_steps=64, total_timesteps=16 * 64 * 2, reward_mode="lagrangian",
+        cost_source="monitor",
+    )  # fmt: skip
+    learner = make_learner(config)
+    assert learner.checker is None
+    runner = fast_jit(learner.init)(jax.random.PRNGKey(0))
+    _, traj, stats = jax.device_get(fast_jit(learner.rollout)(runner, runner.key))
+    auto = AutoReset(config.make_env())
+
+    @fast_jit
+    def replay(state, actions):
+        def step(state, action):
+            state, ts = jax.vmap(auto.step)(state, action)
+            return state, (ts.info["cost"], ts.truncated & ~ts.terminated)
+
+        return lax.scan(step, state, actions)[1]
+
+    cost, cut = jax.device_get(replay(runner.env.state, traj.action))
+    assert cost.sum() >= 2 and cut.any()  # costly steps and cut episodes both happen
+    np.testing.assert_array_equal(traj.cost[~cut], cost[~cut])
+    np.testing.assert_array_equal(stats["cost"], cost.sum(axis=1))
+    assert stats["alarms"].sum() == 0

@@ -17,7 +17,7 @@ from agents.config import PPOConfig
 from agents.train import make_learner, make_train
 
 LAGRANGIAN = dataclasses.replace(
-    TINY, reward_mode="lagrangian", checker_threshold=1e-6, cost_target=0.25, lagrangian_lr=0.1
+    TINY, reward_mode="lagrangian", checker_threshold=1e-6, cost_limit=0.25, lagrangian_lr=0.1
 )
 
 
@@ -54,14 +54,14 @@ def test_lagrange_multiplier_rises_with_cost(lagrangian_train):
     episode_cost = t["episode_cost"].reshape(2, -1)
     lam = t["lagrange"].reshape(2, -1)
     # Threshold 0: every step raises an alarm, so the cost rate is 1 and the cost per finished
-    # episode is the rollout's steps over its episodes, far above cost_target.
+    # episode is the rollout's steps over its episodes, far above cost_limit.
     np.testing.assert_allclose(cost, 1.0)
     episodes = t["episodes"].reshape(2, -1)
     np.testing.assert_allclose(
         episode_cost, LAGRANGIAN.batch_size / np.maximum(episodes, 1), rtol=1e-6
     )
     prev = np.concatenate([np.full((2, 1), LAGRANGIAN.lagrangian_init), lam[:, :-1]], axis=1)
-    step = LAGRANGIAN.lagrangian_lr * (episode_cost - LAGRANGIAN.cost_target)
+    step = LAGRANGIAN.lagrangian_lr * (episode_cost - LAGRANGIAN.cost_limit)
     expected = np.maximum(0.0, prev + step)
     np.testing.assert_allclose(lam, expected, rtol=1e-6)
     assert np.all(np.diff(lam, axis=1) > 0) and np.all(lam[:, 0] > 0)

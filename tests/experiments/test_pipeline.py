@@ -14,7 +14,7 @@ import pytest
 from helpers.cli_help import help_entries, squeezed
 from helpers.experiment_runs import check_outputs, quick, refused_before_any_compile
 
-from agents.config import REWARD_MODES, PPOConfig
+from agents.config import PAPER_MODES, REWARD_MODES, PPOConfig
 from checker.train import CheckerTrainConfig
 from experiments import (
     checker_phases,
@@ -109,7 +109,7 @@ def test_presets_keep_the_published_configurations(experiment, name):
             ppo.penalty_start, ppo.penalty_warmup, ppo.ent_coef, ppo.novelty_bonus, ppo.seed,
             cfg.gif_episodes) == (64, 4, 4, 1e-3, 1.0, 0.0, 0.5, 0.01, 0.01, 0, 4)  # fmt: skip
     assert (chk.window, chk.lookahead, chk.test_fraction, chk.val_fraction) == (5, 1, 0.15, 0.15)
-    assert cfg.modes == REWARD_MODES and (cfg.quick, cfg.paper) == (name == "quick",
+    assert cfg.modes == PAPER_MODES and (cfg.quick, cfg.paper) == (name == "quick",
                                                                      name == "paper")  # fmt: skip
     updates = ppo.total_timesteps // ppo.batch_size
     for mode in REWARD_MODES:  # evaluated every max(1, updates // curve_points) updates
@@ -307,6 +307,23 @@ def test_out_made_before_an_option_existed_resumes_while_it_is_off(tmp_path):
     gated = pipeline.parse_args([*argv, "--penalty-gate", "0.5"], two_rooms.SCENARIO)
     with pytest.raises(ValueError, match="ppo.penalty_gate"):
         phases.prepare_out(gated)
+
+
+def test_out_recorded_under_a_renamed_setting_resumes(tmp_path):
+    """A config.json written when ``ppo.cost_limit`` was named ``ppo.cost_target``: the same
+    run with the same value, another one (named) with another."""
+    argv = ["--quick", "--no-progress", "--out", str(tmp_path)]
+    cfg = pipeline.parse_args(argv, two_rooms.SCENARIO)
+    phases.prepare_out(cfg)
+    saved = json.loads((tmp_path / "config.json").read_text())
+    saved["ppo"]["cost_target"] = saved["ppo"].pop("cost_limit")
+    (tmp_path / "config.json").write_text(json.dumps(saved))
+    phases.prepare_out(cfg)  # resumes, and records the new name from now on
+    assert "cost_target" not in json.loads((tmp_path / "config.json").read_text())["ppo"]
+    (tmp_path / "config.json").write_text(json.dumps(saved))
+    other = pipeline.parse_args([*argv, "--cost-limit", "0.5"], two_rooms.SCENARIO)
+    with pytest.raises(ValueError, match="ppo.cost_limit"):
+        phases.prepare_out(other)
 
 
 def test_out_extends_with_more_modes(tmp_path):

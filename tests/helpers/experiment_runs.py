@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 
-from agents.config import REWARD_MODES
+from agents.config import PAPER_MODES
 from experiments import pipeline
 from experiments.report import COST_KEYS, validate_results
 
@@ -19,7 +19,7 @@ def quick(module, out, *extra) -> dict:
     return pipeline.main(module.SCENARIO, argv)
 
 
-def check_outputs(out, experiment: str, modes=REWARD_MODES, seeds=2, final_episodes=32) -> dict:
+def check_outputs(out, experiment: str, modes=PAPER_MODES, seeds=2, final_episodes=32) -> dict:
     """Every output of a ``--quick`` run in ``out`` exists and follows the schema."""
     for name in OUTPUTS:
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
