@@ -53,16 +53,9 @@ def shardings(runner: RunnerState, mesh: Mesh) -> RunnerState:
     (axis 0 is the seed axis) over ``mesh``; everything else replicated."""
     replicated = NamedSharding(mesh, PartitionSpec())
     split = NamedSharding(mesh, PartitionSpec(None, "envs"))
-    return runner.replace(
-        params=jax.tree.map(lambda _: replicated, runner.params),
-        opt_state=jax.tree.map(lambda _: replicated, runner.opt_state),
-        lagrange=replicated,
-        key=replicated,
-        update=replicated,
-        env=jax.tree.map(lambda _: split, runner.env),
-        hparams=jax.tree.map(lambda _: replicated, runner.hparams),
-        success=replicated,
-    )
+    # Every field but the env batch is replicated, a mode's own state (the PID's) included.
+    everywhere = jax.tree.map(lambda _: replicated, runner)
+    return everywhere.replace(env=jax.tree.map(lambda _: split, runner.env))
 
 
 def to_host(x) -> Any:

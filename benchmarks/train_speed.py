@@ -7,6 +7,11 @@ One thing, one benchmark's protocol, configurations and report, hence its length
     {"mode": "checker", "sps": ..., "compile_s": ..., "device": ..., "baseline_sps": ...,
      "ratio": ..., "num_envs": 256, "num_steps": 128, "epochs": 4, "minibatches": 8, ...}
 
+Every reward mode, the constrained-RL baselines included; where ``lagrangian`` is timed too,
+each line has ``time_vs_lagrangian``, the median over rounds of its seconds per env step over
+``lagrangian``'s (2.0: twice as slow). ``--cost-source`` sets the cost source of the modes
+that can use either (``agents.config.COST_SOURCES``; default: each mode's own).
+
 Protocol (compile ahead, then time; :mod:`agents.timing`):
 
 * ours: :func:`agents.train.make_learner` on ``--env`` (TwoRooms-v0), one learner per mode;
@@ -70,7 +75,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from agents.config import REWARD_MODES, PPOConfig
+from agents.config import COST_SOURCES, REWARD_MODES, PPOConfig
 from agents.timing import compile_ahead, timed
 from benchmarks.cli import integer, require
 from checker.cli import run_main
@@ -132,7 +137,10 @@ def make_checker(env, kind: str = "window"):
 
 
 def make_config(mode: str, sizes: dict, updates: int):
+    source = sizes.get("cost_source")  # for the modes that can use either source only
+    either = len(PPOConfig(reward_mode=mode).mode.sources) > 1
     return PPOConfig(
+        cost_source=source if either else None,
         env_id=sizes["env"],
         reward_mode=mode,
         num_envs=sizes["num_envs"],
@@ -275,6 +283,10 @@ def _loss_forward_fn(learner):
             "cost_target": zeros, "cost_advantage": zeros,
             "advantage": jax.random.normal(runner.key, (c.batch_size,)),
         }  # fmt: skip
+        if c.mode.budget:  # Saute observes its budget
+            batch["budget"] = zeros + 1.0
+        if c.mode.policy_update != "ppo":  # the acting policy's logits, for the KL
+            batch["logits"] = jnp.zeros((c.batch_size, learner.env.num_actions), jnp.float32)
 
         def body(total, i):
             start = (i % c.num_minibatches) * size
@@ -353,6 +365,7 @@ def sizes_of(c) -> dict:
         "env": c.env_id, "num_envs": c.num_envs, "num_steps": c.num_steps,
         "epochs": c.update_epochs, "minibatches": c.num_minibatches,
         "mlp": c.conv_channels == (), "cell_dim": c.cell_dim, "film_codes": c.film_codes,
+        "cost_source": c.cost_source,
     }  # fmt: skip
 
 
@@ -460,6 +473,12 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="the sentence also scales the cells' one-hot codes (PPOConfig.film_codes)",
     )
+    p.add_argument(
+        "--cost-source",
+        default=None,
+        choices=COST_SOURCES,
+        help="cost source of the modes that can use either (None: each mode's own)",
+    )
     p.add_argument("--out", default=None, help="also write the JSON lines to this file")
     return p  # fmt: skip
 
@@ -494,6 +513,7 @@ def main(argv=None) -> list[dict[str, Any]]:
         "env": args.env, "num_envs": args.num_envs, "num_steps": args.num_steps,
         "epochs": args.epochs, "minibatches": args.minibatches, "mlp": args.mlp,
         "cell_dim": args.cell_dim, "film_codes": args.film_codes,
+        "cost_source": args.cost_source,
     }  # fmt: skip
     batch = args.num_envs * args.num_steps
     updates = max(1, args.timesteps // batch // args.repeats)
@@ -507,7 +527,7 @@ def main(argv=None) -> list[dict[str, Any]]:
     )
 
     checker = None
-    if any(PPOConfig(reward_mode=m).uses_checker for m in args.modes):
+    if any(make_config(m, sizes, 1).uses_checker for m in args.modes):
         import jaxgrid
 
         checker = make_checker(jaxgrid.make(args.env))
@@ -569,6 +589,9 @@ def main(argv=None) -> list[dict[str, Any]]:
             "sps_all": [round(s, 1) for s in sps[mode]],
             "load_avg_1m_at_start": load,
         }
+        if "lagrangian" in sps:
+            per_step = [b / s for s, b in zip(sps[mode], sps["lagrangian"], strict=True)]
+            line["time_vs_lagrangian"] = round(_median(per_step), 3)
         if baseline is not None:
             ratios = [s / b for s, b in zip(sps[mode], base_sps, strict=True)]
             line.update(

@@ -21,6 +21,7 @@ from helpers.agents_cases import TINY, fast_jit, leaves
 from agents import checkpoint
 from agents.config import PPOConfig
 from agents.losses import PIDState
+from agents.runner import run
 from agents.train import make_learner, make_train
 
 # Threshold ~0: every step alarms, so the cost per episode is the rollout's steps over the
@@ -92,6 +93,26 @@ def test_a_modes_own_state_goes_through_checkpoints_and_only_there(tmp_path, tin
     checkpoint.save(manager, 1, runner, tmp_path / "lagrangian", [])
     saved = manager.restore(1)
     assert "pid" not in saved and "budget" not in saved["env"]
+    # Saute's budget lives in the env carry, and goes through checkpoints with it.
+    saute = make_learner(dataclasses.replace(SAUTE, cost_source="monitor"))
+    runner = fast_jit(saute.init)(key)
+    runner = runner.replace(env=runner.env.replace(budget=runner.env.budget * 0.5))
+    manager = checkpoint.make_manager(tmp_path / "saute" / "checkpoints")
+    checkpoint.save(manager, 1, runner, tmp_path / "saute", [])
+    back = checkpoint.restore(manager, 1, jax.eval_shape(saute.init, key), None)
+    np.testing.assert_array_equal(back.env.budget, 0.5)
+
+
+def test_a_baseline_runs_and_resumes_through_the_runner(tmp_path):
+    """``agents.runner.run`` trains the PID Lagrangian (its controller in the runner state)
+    over seeds, and a run stopped after a chunk resumes to the same agents, bit for bit."""
+    config = dataclasses.replace(PID, cost_source="monitor")
+    whole = run(config, seeds=(0, 1), progress=False)
+    run(config, seeds=(0, 1), out_dir=tmp_path, progress=False, max_chunks=1)
+    resumed = run(config, seeds=(0, 1), out_dir=tmp_path, progress=False)
+    assert resumed["complete"] and whole["runner"].pid.cost.shape == (2,)
+    for a, b in zip(leaves(whole["runner"]), leaves(resumed["runner"]), strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 @pytest.fixture(scope="module")

@@ -78,10 +78,28 @@ def test_cell_dim_reaches_the_timed_config():
     assert train_speed.make_config("none", train_speed.sizes_of(wide), 1).cell_dim == 32
 
 
+def test_cost_source_reaches_the_modes_that_can_use_either():
+    sizes = {"env": "TwoRooms-v0", "num_envs": 8, "num_steps": 4, "epochs": 1, "minibatches": 2,
+             "cost_source": "monitor"}  # fmt: skip
+    for mode in ("lagrangian", "pid_lagrangian", "saute", "cpo", "focops"):
+        assert train_speed.make_config(mode, sizes, 1).cost_from == "monitor"
+    for mode, own in (("checker", "checker"), ("shield", "checker"), ("none", None)):
+        assert train_speed.make_config(mode, sizes, 1).cost_from == own
+
+
+@pytest.mark.slow  # two more compiles: about a minute on 2 shared cores
+def test_the_baselines_are_timed_against_lagrangian():
+    argv = ["--modes", "lagrangian", "cpo", "--cost-source", "monitor"] + TINY[2:]
+    lines = train_speed.main(argv)
+    assert [line["mode"] for line in lines] == ["lagrangian", "cpo"]
+    assert lines[0]["time_vs_lagrangian"] == 1.0 and lines[1]["time_vs_lagrangian"] > 0
+
+
 @pytest.mark.parametrize(
     "argv",
     [
         ["--modes", "bogus"],
+        ["--cost-source", "oracle"],
         ["--num-envs", "0"],
         ["--num-envs", "6", "--minibatches", "4"],
         ["--repeats", "-1"],
@@ -122,7 +140,7 @@ def test_help_shows_every_default(capsys):
     with pytest.raises(SystemExit):
         train_speed.main(["--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert text.count("(default: ") == 16  # every flag but --help
+    assert text.count("(default: ") == 17  # every flag but --help
 
 
 @pytest.mark.slow  # baseline + profile compiles: 1-2 minutes on 2 shared cores
