@@ -239,10 +239,10 @@ class HazardRooms(ConstrainedEnvironment):
             self.constraint_table()  # parses and checks every sentence now
             if self.weights is not None:
                 check_weights(self.weights, len(self.sentences))
-        elif self.weights is not None:
-            raise ValueError(f"{name}.weights needs sentences: they weigh the given sentences")
             for sentence in dict.fromkeys(self.sentences):
                 _check_satisfiable(self, sentence)
+        elif self.weights is not None:
+            raise ValueError(f"{name}.weights needs sentences: they weigh the given sentences")
 
     #: Its doors (the five non-green colours), lava, water, grass and yellow floor, a key.
     CONTENTS = Contents(

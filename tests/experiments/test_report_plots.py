@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.report import MODES, curves_from_results, plot_curves
+from agents.config import PAPER_MODES as MODES  # the fixture's modes
+from experiments.report import curves_from_results, plot_curves
 
 
 def _curves(seeds=3, steps=12):

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from helpers.report_cases import COST_RATES, COSTS, METRICS, with_costs
 
-from experiments.report import MODES, results_table, summarise, validate_results, write_report
+from agents.config import PAPER_MODES as MODES  # the fixture's modes
+from experiments.report import results_table, summarise, validate_results, write_report
 
 
 def test_results_table(good):
