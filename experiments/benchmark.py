@@ -36,7 +36,7 @@ from tyro.constructors import PrimitiveConstructorSpec
 
 from agents.config import REWARD_MODES
 from checker import cli
-from experiments.phases import config_dict
+from experiments.phases import FREE_SETTINGS, config_dict
 from experiments.pipeline import Modes, preset, run_experiment
 from experiments.presets import BENCHMARK_LEVELS, EXPERIMENTS
 from experiments.report.plots import plot_benchmark_level
@@ -139,10 +139,9 @@ def finished(cfg) -> dict | None:
         results = read_json(path)
     except ValueError:
         return None  # damaged: the pipeline makes it again
-    free = ("progress", "out", "modes", "machine_baseline", "workers")
-    mine = {k: v for k, v in config_dict(cfg).items() if k not in free}
-    theirs = {k: v for k, v in (results.get("config") or {}).items() if k not in free}
-    if mine != theirs or not set(cfg.modes) <= set(results.get("methods", {})):
+    theirs = results.get("config") or {}  # the configuration, and derived keys beside it
+    same = all(theirs.get(k) == v for k, v in config_dict(cfg).items() if k not in FREE_SETTINGS)
+    if not same or not set(cfg.modes) <= set(results.get("methods", {})):
         return None
     return results
 

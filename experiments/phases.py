@@ -33,8 +33,13 @@ from experiments import provenance
 from jaxgrid.io import holds_declared_default, read_json, to_jsonable, write_json
 
 __all__: list[str] = ["prepare_out", "ppo_config", "behaviour_config", "config_dict", "redo",
-                      "resumed_run", "mode_arguments", "Precompiled", "train_agents",
+                      "resumed_run", "FREE_SETTINGS", "mode_arguments", "Precompiled",
+                      "train_agents",
                       "write_gif"]  # fmt: skip
+
+
+#: Settings that change no artefact: a run may resume, or be read back, with others.
+FREE_SETTINGS = ("progress", "out", "modes", "machine_baseline", "workers")
 
 
 def config_dict(cfg) -> dict:
@@ -85,8 +90,7 @@ def prepare_out(cfg) -> Path:
         probe.unlink()
     except OSError as e:
         raise ValueError(f"--out {cfg.out}: not writable ({e.strerror or e})") from None
-    free = ("progress", "out", "modes", "machine_baseline", "workers")
-    mine = {k: v for k, v in _flat(config_dict(cfg)).items() if k not in free}
+    mine = {k: v for k, v in _flat(config_dict(cfg)).items() if k not in FREE_SETTINGS}
     path = out / "config.json"
     if path.exists():
         try:
@@ -96,7 +100,7 @@ def prepare_out(cfg) -> Path:
                 f"{e}: it records the configuration of the run in --out "
                 f"{cfg.out}; delete it to resume with these flags"
             ) from None
-        theirs = {k: v for k, v in _flat(saved).items() if k not in free}
+        theirs = {k: v for k, v in _flat(saved).items() if k not in FREE_SETTINGS}
         if "memory_checker.label" in theirs:  # recorded before it was named lookahead
             label = theirs.pop("memory_checker.label")
             theirs["memory_checker.lookahead"] = LABEL_LOOKAHEADS.get(label, label)

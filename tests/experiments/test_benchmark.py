@@ -21,7 +21,8 @@ def _fake_results(cfg) -> dict:
     methods = {m: {"iqm": {"violation_rate": summary(0.1 * base), "success_rate": summary(0.5),
                            "mean_reward": summary(0.4), "training_violations": summary(10.0 + i)}}
                for i, m in enumerate(cfg.modes)}  # fmt: skip
-    return {"methods": methods, "timing": {"total_s": 1.0}, "config": benchmark.config_dict(cfg)}
+    config = {**benchmark.config_dict(cfg), "penalty_start": 0.5}  # assembly adds keys
+    return {"methods": methods, "timing": {"total_s": 1.0}, "config": config}
 
 
 @pytest.mark.parametrize(("argv", "message"), [
