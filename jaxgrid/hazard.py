@@ -483,7 +483,9 @@ def _layout_env(env: HazardRooms) -> HazardRooms:
     """``env`` with the settings that never shape a layout set to fixed values, so that envs
     differing only in them share one compiled check: steps and views (``max_steps``,
     ``view_size``, ``see_through_walls``) and the constraint table (the spec is an input)."""
-    return env.replace(sentences=None, max_steps=1, view_size=7, see_through_walls=False)
+    return env.replace(
+        sentences=None, weights=None, max_steps=1, view_size=7, see_through_walls=False
+    )
 
 
 @functools.cache
