@@ -127,13 +127,14 @@ def focops_loss(log_probs, ratio, adv, batch, nu, config) -> tuple[jax.Array, ja
     solution of the constrained problem in the space of policies, to which the KL term pulls
     the policy; a sample whose KL exceeds the bound gives no gradient, so that no state moves
     far in one update. ``log_probs`` (B, A) are the policy's, ``batch["logits"]`` the old
-    policy's; ``adv`` is normalised, the cost advantage only centred (a batch with no cost
-    must not be blown up to unit scale).
+    policy's; ``adv`` is normalised, and the cost advantage too, as the paper's code does, so
+    that ``nu`` weighs two advantages of one scale.
     """
     old = jax.nn.log_softmax(batch["logits"])
     kl = jnp.sum(jnp.exp(log_probs) * (log_probs - old), axis=-1)
     keep = lax.stop_gradient(kl <= config.focops_max_kl).astype(jnp.float32)
-    cost_adv = batch["cost_advantage"] - batch["cost_advantage"].mean()
+    cost_adv = batch["cost_advantage"]
+    cost_adv = (cost_adv - cost_adv.mean()) / (cost_adv.std() + 1e-8)
     loss = kl - ratio * (adv - nu * cost_adv) / config.focops_lam
     return jnp.mean(loss * keep), keep.mean()
 

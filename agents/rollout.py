@@ -210,16 +210,15 @@ def env_step(
         signal = (carry.alarmed & (action == FORWARD)).astype(jnp.float32)
     cost = jnp.zeros_like(ts.reward)
     reward = ts.reward
-    if c.reward_mode == "shaped":
-        reward = reward - penalty * violation.astype(jnp.float32)
-    elif c.reward_mode == "checker":
-        reward = reward - penalty * signal
+    monitored = c.cost_from == "monitor"
+    if c.mode.penalty:  # shaped (the monitor's violations), checker (the alarms)
+        reward = reward - penalty * (violation.astype(jnp.float32) if monitored else signal)
     elif c.mode.cost_critic or c.mode.budget:
-        cost = signal if c.cost_from == "checker" else cost_of(ts)
-    if c.end_episode and c.reward_mode in ("shaped", "checker"):
+        cost = cost_of(ts) if monitored else signal
+    if c.end_episode and c.mode.penalty:
         # The learner ends the episode where the signal fired: a terminal step, then a fresh
         # episode, as if the env had ended it.
-        ended = (violation if c.reward_mode == "shaped" else alarm > 0) & ~done
+        ended = (violation if monitored else alarm > 0) & ~done
         states, restarted = env.restart(states, ts.observation, ended)
         ts = ts.replace(observation=restarted, terminated=ts.terminated | ended)
         done = done | ended

@@ -276,6 +276,11 @@ class Learner(struct.PyTreeNode):
                 flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), flat)
             return flat
 
+        # FOCOPS moves its multiplier on this rollout's cost before its epochs; the
+        # Lagrangians move theirs after, for the next update.
+        early = c.mode.policy_update == "focops"
+        lagrange, pid = self.multiplier(runner, stats) if early else (runner.lagrange, None)
+
         def loss(params, mb, lagrange):
             out = self.forward(params, mb)
             policy = lambda p, *x: out  # noqa: E731  (computed from ``params`` above)
@@ -299,7 +304,7 @@ class Learner(struct.PyTreeNode):
 
             def minibatch(carry, mb):
                 params, opt_state = carry
-                grads, info = jax.grad(loss, has_aux=True)(params, mb, runner.lagrange)
+                grads, info = jax.grad(loss, has_aux=True)(params, mb, lagrange)
                 if c.mode.policy_update == "cpo":
                     grads = value_heads_only(grads)
                 updates, opt_state = self.optimizer.update(grads, opt_state, params)
@@ -312,7 +317,9 @@ class Learner(struct.PyTreeNode):
         (params, opt_state), info = lax.scan(
             epoch, (params, runner.opt_state), jax.random.split(perm_key, c.update_epochs)
         )
-        (lagrange, pid), metrics = self._statistics(runner, info, stats)
+        if not early:
+            lagrange, pid = self.multiplier(runner, stats)
+        metrics = self._statistics(info, stats, lagrange)
         metrics.update(step_stats)
         runner = runner.replace(
             params=params, opt_state=opt_state, lagrange=lagrange, key=key,
@@ -395,10 +402,10 @@ class Learner(struct.PyTreeNode):
         not diluted by long safe stretches."""
         return stats["cost"].sum() / jnp.maximum(stats["episodes"].sum(), 1)
 
-    def _statistics(self, runner: RunnerState, info: dict, stats: dict):
-        """``((next Lagrange multiplier, next PID state), the update's metrics)``."""
+    def multiplier(self, runner: RunnerState, stats: dict):
+        """``(the next Lagrange multiplier, the next PID state)`` after a rollout's ``stats``:
+        a gradient step on its cost per episode over the limit, or the PID controller's."""
         c = self.config
-        cost_rate = stats["cost"].sum() / c.batch_size
         episode_cost = self.episode_cost(stats)
         lagrange, pid = runner.lagrange, runner.pid
         # Held at its start value until the constraint switches on (whatever ``penalty``).
@@ -418,6 +425,13 @@ class Learner(struct.PyTreeNode):
             )
             lagrange = jnp.where(active, new, lagrange)
             pid = moved.replace(integral=jnp.where(active, moved.integral, pid.integral))
+        return lagrange, pid
+
+    def _statistics(self, info: dict, stats: dict, lagrange: jax.Array) -> dict:
+        """The update's metrics: the losses' means, the rollout's totals and rates."""
+        c = self.config
+        cost_rate = stats["cost"].sum() / c.batch_size
+        episode_cost = self.episode_cost(stats)
         metrics = jax.tree.map(jnp.mean, info)
         totals = jax.tree.map(jnp.sum, stats)
         metrics.update(
@@ -430,7 +444,7 @@ class Learner(struct.PyTreeNode):
             env_cost=totals["env_cost"],  # the env's info["cost"], whatever the mode uses
             lagrange=lagrange,
         )
-        return (lagrange, pid), metrics
+        return metrics
 
     # -- evaluation ---------------------------------------------------------------------
     def act(self, params, obs, key, allowed=None, memory=None, budget=None):
