@@ -57,6 +57,14 @@ MODES = {
     "shield_monitor": Mode(("monitor",), shield=True),
 }
 REWARD_MODES = tuple(MODES)
+
+
+def either_source(mode: str) -> tuple[str, ...]:
+    """The cost sources that ``mode`` can be switched between (``PPOConfig.cost_source``):
+    all of :data:`COST_SOURCES` for the modes that can learn from either, else none."""
+    return MODES[mode].sources if len(MODES[mode].sources) > 1 else ()
+
+
 # The modes the paper's experiments compare (``python -m experiments.two_rooms`` trains them).
 PAPER_MODES = ("checker", "shaped", "none", "lagrangian", "shield", "shield_monitor")
 # Hyperparameters that can differ between the agents of one compiled program (a sweep):

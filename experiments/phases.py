@@ -24,7 +24,7 @@ from typing import Protocol
 import jax
 
 from agents.checkpoint import ResumeError
-from agents.config import RENAMED, PPOConfig
+from agents.config import RENAMED, PPOConfig, either_source
 from agents.networks import start_memory
 from agents.runner import run as run_ppo
 from agents.train import make_learner
@@ -123,8 +123,10 @@ def prepare_out(cfg) -> Path:
 
 
 def ppo_config(cfg, mode: str) -> PPOConfig:
-    """The compared agents' :class:`PPOConfig` in reward mode ``mode``."""
-    return _evaluated(cfg, dataclasses.replace(cfg.ppo, reward_mode=mode))
+    """The compared agents' :class:`PPOConfig` in reward mode ``mode``, with the experiment's
+    ``cost_source`` where the mode can learn from either source."""
+    source = cfg.cost_source if cfg.cost_source in either_source(mode) else None
+    return _evaluated(cfg, dataclasses.replace(cfg.ppo, reward_mode=mode, cost_source=source))
 
 
 def behaviour_config(cfg) -> PPOConfig:

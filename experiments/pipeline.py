@@ -49,7 +49,14 @@ from typing import Annotated
 
 from tyro.constructors import PrimitiveConstructorSpec
 
-from agents.config import PAPER_MODES, REWARD_MODES, PPOConfig, check_sweep
+from agents.config import (
+    COST_SOURCES,
+    PAPER_MODES,
+    REWARD_MODES,
+    PPOConfig,
+    check_sweep,
+    either_source,
+)
 from checker import cli
 from checker.train import CheckerTrainConfig, MemoryTrainConfig
 from experiments import assembly, checker_phases, phases, scheduling
@@ -84,6 +91,10 @@ class ExperimentConfig:
     out: str | None = None  # output directory; None: runs/<experiment>/<date-time>
     checker: str | None = None  # a trained checker's directory, reused (skips phases a-c)
     modes: Modes = PAPER_MODES  # the reward modes compared (any of REWARD_MODES)
+    # the cost of the modes that can learn from either source (lagrangian, pid_lagrangian,
+    # saute, cpo, focops): "checker", its alarms (the paper's idea), or "monitor", the
+    # ground-truth cost (the safe-RL convention); None: each mode's own (the checker's)
+    cost_source: str | None = None
     seeds: int = 5  # agents per mode, trained at once: seeds --seed, --seed + 1, ...
     # NAME=V1,V2,...: every seed runs with every value, all in one compiled program per mode
     # (NAME: penalty, checker_threshold, cost_limit, ent_coef or lr); results per value
@@ -150,6 +161,19 @@ class ExperimentConfig:
         if unknown or not self.modes or len(set(self.modes)) < len(self.modes):
             raise ValueError(f"{me}.modes: unknown, repeated or no mode(s) in {self.modes}; "
                              f"choose from {','.join(REWARD_MODES)}")  # fmt: skip
+        if self.ppo.cost_source is not None:
+            raise ValueError(f"PPOConfig.cost_source is set per mode in an experiment: use "
+                             f"{me}.cost_source (--cost-source)")  # fmt: skip
+        if self.cost_source is not None:
+            if self.cost_source not in COST_SOURCES:
+                raise ValueError(f"{me}.cost_source must be None or one of {COST_SOURCES}, "
+                                 f"got {self.cost_source!r}")  # fmt: skip
+            if not any(either_source(m) for m in self.modes):
+                raise ValueError(
+                    f"{me}.cost_source={self.cost_source!r}: no mode of {','.join(self.modes)} "
+                    "can learn from either source (those that can: "
+                    f"{','.join(m for m in REWARD_MODES if either_source(m))})"
+                )
         positive = ("seeds", "behaviour_steps", "checker_samples", "collect_max_steps",
                     "curve_points", "final_episodes", "workers")  # fmt: skip
         for name in positive + ("gif_episodes",):
@@ -308,7 +332,7 @@ FLAGS: cli.Names = {
     ExperimentConfig: {"experiment": None, "checker_env_id": None, "checker_kind": None,
                        "ppo": "PPO", "checker_train": "checker", "memory_checker": "checker"},
     PPOConfig: {"total_timesteps": "steps", "env_id": None, "env_kwargs": None,
-                "reward_mode": None, "eval_every": None},
+                "reward_mode": None, "eval_every": None, "cost_source": None},
     CheckerTrainConfig: {**{f.name: f"checker_{f.name}"
                             for f in dataclasses.fields(CheckerTrainConfig)},
                          "window": "window", "lookahead": "lookahead", "seed": None,

@@ -338,7 +338,11 @@ def benchmark_table(summary: Mapping) -> str:
                              f"{f['iqm'] * scale:.{digits}f} [{f['lo'] * scale:.{digits}f}, "
                              f"{f['hi'] * scale:.{digits}f}]")  # fmt: skip
             lines.append(f"| {level} | {method} | " + " | ".join(cells) + " |")
-    seeds = summary.get("config", {}).get("seeds")
-    lines += ["", f"Interquartile mean over {seeds} seeds [95% stratified-bootstrap interval]; "
-              "per-seed values in benchmark.json."]  # fmt: skip
+    config = summary.get("config", {})
+    source = {"monitor": "the monitor's ground-truth cost"}.get(
+        config.get("cost_source"), "the checker's alarms"
+    )
+    lines += ["", f"Interquartile mean over {config.get('seeds')} seeds [95% stratified-"
+              "bootstrap interval]; per-seed values in benchmark.json. The constrained "
+              f"methods learn from {source}."]  # fmt: skip
     return "\n".join(lines) + "\n"

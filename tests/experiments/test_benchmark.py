@@ -31,6 +31,7 @@ def _fake_results(cfg) -> dict:
     (["--methods", "none,none"], "repeated"),
     (["--levels", "label_timing"], "--levels: unknown"),  # an ablation, not a level
     (["--seeds", "0"], "--seeds must be an integer >= 1"),
+    (["--methods", "none,shield", "--cost-source", "monitor"], "no mode of none,shield"),
 ])  # fmt: skip
 def test_bad_flags_are_refused_before_any_compile(argv, message, tmp_path, capsys, compiles):
     with pytest.raises(SystemExit) as exc:
@@ -54,17 +55,20 @@ def test_every_level_runs_through_the_pipeline_then_one_table(tmp_path, monkeypa
 
     monkeypatch.setattr(benchmark, "run_experiment", run)
     argv = ["--quick", "--no-progress", "--levels", "two_rooms,hazard_rooms", "--methods",
-            "none,shaped", "--seeds", "3", "--out", str(tmp_path / "b")]  # fmt: skip
+            "none,shaped,lagrangian", "--seeds", "3", "--cost-source", "monitor", "--out",
+            str(tmp_path / "b")]  # fmt: skip
     out = benchmark.main(argv)
     assert [c.experiment for c in ran] == ["two_rooms", "hazard_rooms"]
     for cfg in ran:
-        assert cfg.quick and cfg.modes == ("none", "shaped") and cfg.seeds == 3
+        assert cfg.quick and cfg.modes == ("none", "shaped", "lagrangian") and cfg.seeds == 3
+        assert cfg.cost_source == "monitor"
         assert cfg.out == str(tmp_path / "b" / cfg.experiment)
         assert cfg.env_id == EXPERIMENTS[cfg.experiment].env_id
     table = (tmp_path / "b" / "benchmark.md").read_text()
     rows = [line for line in table.splitlines() if line.startswith("| two_rooms")
             or line.startswith("| hazard_rooms")]  # fmt: skip
-    assert len(rows) == 4
+    assert len(rows) == 6
+    assert "learn from the monitor's ground-truth cost" in table
     assert "| hazard_rooms | shaped | 30.0 [29.0, 31.0] | 50.0 [49.0, 51.0] |" in table
     assert "n/a" in table  # figures these results do not hold
     summary = json.loads((tmp_path / "b" / "benchmark.json").read_text())
@@ -76,7 +80,7 @@ def test_every_level_runs_through_the_pipeline_then_one_table(tmp_path, monkeypa
     ran.clear()
     benchmark.main(argv)  # resumed: both levels are done
     assert ran == []
-    benchmark.main([*argv[:5], "none,shaped,checker", *argv[6:]])  # a method more: rerun
+    benchmark.main([*argv[:5], "none,shaped,lagrangian,checker", *argv[6:]])  # a method more: rerun
     assert [c.experiment for c in ran] == ["two_rooms", "hazard_rooms"]
 
 

@@ -253,6 +253,8 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
         (["--checker-test-fraction", "0"], "--checker-test-fraction must be > 0"),
         (["--checker-val-fraction", "0.9"], "--checker-test-fraction + --checker-val-fraction"),
         (["--workers", "0"], "--workers must be an integer >= 1, got 0"),
+        (["--cost-source", "oracle"], "--cost-source must be None or one of"),
+        (["--cost-source", "monitor", "--modes", "shaped,shield"], "no mode of shaped,shield"),
     ],
 )
 def test_bad_flags_are_usage_errors_naming_the_flag_before_any_compile(
@@ -417,3 +419,25 @@ def test_collection_epsilon_mixes_uniform_actions_into_the_behaviour_agent():
     uniform = dataclasses.replace(agent, epsilon=1.0)
     counts = np.bincount(uniform(params, obs, None, key), minlength=7)
     assert counts.sum() == 4000 and np.all(np.abs(counts / 4000 - 1 / 7) < 0.03), counts
+
+
+def test_the_cost_source_reaches_the_modes_that_can_learn_from_either_only():
+    """--cost-source monitor: the constrained modes learn from the monitor's cost, the
+    penalty modes and shields keep their own source (their configs are unchanged)."""
+    from experiments import phases
+    from experiments.pipeline import preset
+    from experiments.presets import EXPERIMENTS
+
+    modes = ("checker", "shaped", "lagrangian", "saute", "cpo", "shield")
+    base = dataclasses.replace(preset(EXPERIMENTS["two_rooms"], "quick"), modes=modes)
+    cfg = dataclasses.replace(base, cost_source="monitor")
+    for mode in modes:
+        config = phases.ppo_config(cfg, mode)
+        either = mode in ("lagrangian", "saute", "cpo")
+        assert config.cost_source == ("monitor" if either else None)
+        assert config.uses_checker == (mode in ("checker", "shield"))
+        if not either:
+            assert config == phases.ppo_config(base, mode)
+    with pytest.raises(ValueError, match="set per mode in an experiment"):
+        dataclasses.replace(base, ppo=dataclasses.replace(
+            base.ppo, reward_mode="lagrangian", cost_source="monitor"))  # fmt: skip
