@@ -79,6 +79,7 @@ def fast_path(tmp_path):
         yield Path(path)
 
 
+@pytest.mark.slow
 def test_saves_from_several_threads_never_collide(fast_path):
     dirs = [fast_path / "modes" / f"mode{i}" for i in range(THREADS)]
     errors: list[str] = []

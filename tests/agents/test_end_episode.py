@@ -7,6 +7,7 @@ import dataclasses
 
 import jax
 import numpy as np
+import pytest
 from helpers.agents_cases import TINY, fast_jit
 
 from agents.train import make_learner
@@ -40,6 +41,7 @@ def test_every_alarm_ends_the_episode(tiny_checker):
     assert np.all(ep_length <= 16)
 
 
+@pytest.mark.slow
 def test_without_it_alarms_only_cost_the_penalty(tiny_checker):
     traj, stats, _ = _rollout(dataclasses.replace(ALARMING, end_episode=False), tiny_checker)
     assert int(stats["alarms"].sum()) > 10 and int(stats["episodes"].sum()) == 0

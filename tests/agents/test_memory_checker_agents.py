@@ -55,7 +55,7 @@ def _streams(observed, finals, done):
     return out
 
 
-@pytest.mark.parametrize("actions", [False, True])
+@pytest.mark.parametrize("actions", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_the_rollout_scores_each_step_as_the_whole_stream_would(memory_checker, actions):
     """The probability the rollout penalises (soft checker, gamma 0: reward = env reward -
     probability) equals the memory checker run over each env's whole stream of frames: the

@@ -80,6 +80,7 @@ def test_memory_restarts_with_each_episode(rollout):
     assert np.abs(np.asarray(env.memory)[~ended]).max() > 0
 
 
+@pytest.mark.slow
 def test_recurrent_training_and_evaluation_run():
     out = jax.jit(make_train(RECURRENT))(jax.random.PRNGKey(0))
     assert np.isfinite(np.asarray(out["train"]["loss"])).all()

@@ -182,9 +182,10 @@ def test_checker_and_shaped_rewards(rollouts):
 
 @pytest.mark.parametrize(
     "changes,carrying",
-    [(False, True), (True, True), (False, False)],
+    [pytest.param(False, True, marks=pytest.mark.slow), (True, True),
+     pytest.param(False, False, marks=pytest.mark.slow)],
     ids=["visits", "visits_and_changes", "cells_only"],
-)
+)  # fmt: skip
 def test_novelty_bonus_pays_first_visits_per_episode(rollouts, changes, carrying):
     """The bonus is the reward difference against the same rollout without it (the shaped
     learner of ``rollouts``: same params and keys, so the same actions), and equals a host
@@ -226,6 +227,7 @@ def test_novelty_bonus_pays_first_visits_per_episode(rollouts, changes, carrying
     assert tr1.done.any()  # and episodes restart within the rollout
 
 
+@pytest.mark.slow
 def test_novelty_claim_caps_the_bonus_and_pays_the_rest_at_the_goal():
     """``novelty_claim`` K: against the same rollout without the bonus, an episode is paid for
     new (cell, carrying) pairs until it has visited K (its start included), and the step that
@@ -266,6 +268,7 @@ def test_novelty_claim_caps_the_bonus_and_pays_the_rest_at_the_goal():
         dataclasses.replace(base, novelty_bonus=0.1, novelty_claim=-1)
 
 
+@pytest.mark.slow
 def test_novelty_changes_pay_each_cell_once_per_episode():
     """``visits``/``novel`` on hand-made states: an episode's start has nothing changed, a
     door that opens pays once, and opening it again (or a revisit) pays nothing."""

@@ -300,6 +300,7 @@ def test_cancel_stops_between_chunks_and_the_run_resumes_bit_identically(tmp_pat
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow
 def test_runs_in_two_threads_at_once_match_the_run_alone(uninterrupted):
     """Experiments train two programs at once in threads: neither changes the other's
     numbers (a shaped and an unshaped run, at the same time, against each alone)."""

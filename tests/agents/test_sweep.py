@@ -43,6 +43,7 @@ def test_agents_are_every_combination_times_every_seed(swept):
     ]
 
 
+@pytest.mark.slow
 def test_each_agent_trains_like_its_own_run(swept):
     """Seed 1 with penalty 2.0 and entropy 0.05 is agent 7: the same as a run of that config."""
     r, _ = swept

@@ -24,6 +24,7 @@ def test_flags(capsys, compiles):
     assert not compiles
 
 
+@pytest.mark.slow
 def test_tiny_measurement():
     env = jaxgrid.make("TwoRooms-v0")
     config = CheckerConfig(window=3, gru_dim=8, word_dim=4, state_dim=8, mlp_dim=8)

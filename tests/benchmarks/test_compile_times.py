@@ -9,6 +9,7 @@ import pytest
 from benchmarks import compile_times as CT
 
 
+@pytest.mark.slow
 def test_reports_each_id_with_its_verdict(tmp_path):
     out = tmp_path / "compile.json"
     ids = ["MiniGrid-Empty-5x5-v0", "MiniGrid-ObstructedMaze-1Dl-v0"]

@@ -16,6 +16,7 @@ def test_family_throughput_says_navix_is_missing(monkeypatch):
         family_throughput.main(["--num-envs", "4"])
 
 
+@pytest.mark.slow
 def test_masked_auto_reset_plays_the_same_episodes():
     a, b = (
         ET.measure(lib, 8, 32, repeats=1, env_id="MiniGrid-LavaGapS5-v0")

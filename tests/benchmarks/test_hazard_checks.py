@@ -9,6 +9,7 @@ from jaxgrid import language
 from jaxgrid.hazard import HazardRooms
 
 
+@pytest.mark.slow
 def test_oracle_figures_cover_every_type_and_obey():
     env = HazardRooms(width=9, height=9, max_steps=60)
     figures = hazard_checks.oracle_figures(env, episodes=5, batch=64)

@@ -64,9 +64,11 @@ def test_the_label_timing_of_saved_memory_checkers_is_read():
     assert _sha(into) == EXPECTED["params_sha256"]["memory"]
 
 
+@pytest.mark.slow
 def test_training_the_window_fixture_again_gives_its_parameters():
     assert _sha(F.train_window()) == EXPECTED["params_sha256"]["window"]
 
 
+@pytest.mark.slow
 def test_training_the_memory_fixture_again_gives_its_parameters():
     assert _sha(F.train_memory()) == EXPECTED["params_sha256"]["memory"]

@@ -73,6 +73,7 @@ def test_lead_time_by_hand():
     assert lt["false_alarm_rate"] == 1.0 and lt["false_alarm_window_rate"] == pytest.approx(1 / 3)
 
 
+@pytest.mark.slow
 def test_colour_counterfactual_on_toy(toy, trained_toy):
     """Recolouring the sentence of a detected positive turns it into a (true) negative."""
     _, test = toy

@@ -44,6 +44,7 @@ def test_stream_actions_lead_into_each_frame(streams):
     assert costly.sum() > 0 and (d["action"][costly] == FORWARD).all()
 
 
+@pytest.mark.slow
 def test_guided_streams_follow_the_oracle_on_alternate_halves(streams):
     """``guided=1``: even streams follow the oracle that obeys the constraint, so none of them
     violates; odd streams plan through hazards. Both reach the goal far more often than the

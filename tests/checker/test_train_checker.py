@@ -80,7 +80,7 @@ def test_lava_counterfactuals_recolour_door_and_lava_positives(toy):
 # ------------------------------------------------------------------- the memory checker
 
 
-@pytest.mark.parametrize("actions", [False, True])
+@pytest.mark.parametrize("actions", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_training_lowers_the_loss(streams, actions):
     config = dataclasses.replace(cases.MEMORY_SMALL, actions=actions)
     params, losses = train_memory_checker(

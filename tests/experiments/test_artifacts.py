@@ -305,6 +305,7 @@ def test_non_finite_error_names_a_checkpoint_only_when_one_exists(built, tmp_pat
 
 
 # ------------------------------------------------------------------ one writer
+@pytest.mark.slow
 def test_two_runs_on_one_out_exactly_one_works(run_copy):
     """A resumes the finished copy (exit 0); B, started while A holds the lock, exits 2
     naming A's pid without compiling anything (JAX logs every compile for it); the lock is

@@ -24,6 +24,7 @@ def test_front_groups_name_doors_by_state_and_sentence():
                    "door closed other"]  # fmt: skip
 
 
+@pytest.mark.slow
 def test_counts_add_up(tmp_path):
     """An untrained checker with its threshold at the median score of the same windows."""
     untrained = new_checker(TINY, jax.random.PRNGKey(0), env_id="TwoRooms-v0")

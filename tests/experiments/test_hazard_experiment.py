@@ -190,6 +190,7 @@ def test_the_memory_checker_phase_is_skipped_when_done_and_redone_when_damaged(
     assert "c. memory checker: redoing this phase" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_memory_checker_phase_trains_a_checker_of_actions_when_asked(
     tmp_path, capsys, monkeypatch
 ):

@@ -219,6 +219,7 @@ def test_multiroom_layout_distribution(env_id):
     assert (ours["rooms"] == env.max_num_rooms).all()
 
 
+@pytest.mark.slow
 def test_layout_test_detects_rooms_placed_without_minigrids_eight_tries(monkeypatch):
     """With unlimited tries per room (each room uniform among the places that fit, the
     natural shortcut), chains that start near the grid's sides fail less often, which shifts
