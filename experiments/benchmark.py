@@ -60,9 +60,9 @@ class BenchmarkConfig:
 
     levels: Levels = BENCHMARK_LEVELS  # the levels: rows of experiments.presets.EXPERIMENTS
     methods: Modes = REWARD_MODES  # the methods compared: reward modes of agents.config
-    # the constrained methods' cost (ExperimentConfig.cost_source): "checker", "monitor";
+    # the constrained methods' cost (ExperimentConfig.constrained_cost): "checker", "monitor";
     # None: each method's own (the checker's alarms)
-    cost_source: str | None = None
+    constrained_cost: str | None = None
     seeds: int = 5  # agents per method and level
     quick: bool = False  # every cell tiny: the outputs in minutes, results mean nothing
     out: str | None = None  # output directory; None: runs/benchmark/<date-time>
@@ -93,7 +93,7 @@ class BenchmarkConfig:
         """The :class:`~experiments.pipeline.ExperimentConfig` of one level's cell."""
         cfg = preset(EXPERIMENTS[level], "quick" if self.quick else "default")
         out = None if self.out is None else os.path.join(self.out, level)
-        return dataclasses.replace(cfg, modes=self.methods, cost_source=self.cost_source,
+        return dataclasses.replace(cfg, modes=self.methods, constrained_cost=self.constrained_cost,
                                    seeds=self.seeds, out=out,
                                    progress=self.progress, workers=self.workers,
                                    machine_baseline=False)  # fmt: skip

@@ -124,8 +124,8 @@ def prepare_out(cfg) -> Path:
 
 def ppo_config(cfg, mode: str) -> PPOConfig:
     """The compared agents' :class:`PPOConfig` in reward mode ``mode``, with the experiment's
-    ``cost_source`` where the mode can learn from either source."""
-    source = cfg.cost_source if cfg.cost_source in either_source(mode) else None
+    ``constrained_cost`` as its ``cost_source`` where the mode can learn from either source."""
+    source = cfg.constrained_cost if cfg.constrained_cost in either_source(mode) else None
     return _evaluated(cfg, dataclasses.replace(cfg.ppo, reward_mode=mode, cost_source=source))
 
 

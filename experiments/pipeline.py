@@ -94,7 +94,7 @@ class ExperimentConfig:
     # the cost of the modes that can learn from either source (lagrangian, pid_lagrangian,
     # saute, cpo, focops): "checker", its alarms (the paper's idea), or "monitor", the
     # ground-truth cost (the safe-RL convention); None: each mode's own (the checker's)
-    cost_source: str | None = None
+    constrained_cost: str | None = None
     seeds: int = 5  # agents per mode, trained at once: seeds --seed, --seed + 1, ...
     # NAME=V1,V2,...: every seed runs with every value, all in one compiled program per mode
     # (NAME: penalty, checker_threshold, cost_limit, ent_coef or lr); results per value
@@ -163,15 +163,15 @@ class ExperimentConfig:
                              f"choose from {','.join(REWARD_MODES)}")  # fmt: skip
         if self.ppo.cost_source is not None:
             raise ValueError(f"PPOConfig.cost_source is set per mode in an experiment: use "
-                             f"{me}.cost_source (--cost-source)")  # fmt: skip
-        if self.cost_source is not None:
-            if self.cost_source not in COST_SOURCES:
-                raise ValueError(f"{me}.cost_source must be None or one of {COST_SOURCES}, "
-                                 f"got {self.cost_source!r}")  # fmt: skip
+                             f"{me}.constrained_cost (--constrained-cost)")  # fmt: skip
+        if self.constrained_cost is not None:
+            if self.constrained_cost not in COST_SOURCES:
+                raise ValueError(f"{me}.constrained_cost must be None or one of {COST_SOURCES}, "
+                                 f"got {self.constrained_cost!r}")  # fmt: skip
             if not any(either_source(m) for m in self.modes):
                 raise ValueError(
-                    f"{me}.cost_source={self.cost_source!r}: no mode of {','.join(self.modes)} "
-                    "can learn from either source (those that can: "
+                    f"{me}.constrained_cost={self.constrained_cost!r}: no mode of "
+                    f"{','.join(self.modes)} can learn from either source (those that can: "
                     f"{','.join(m for m in REWARD_MODES if either_source(m))})"
                 )
         positive = ("seeds", "behaviour_steps", "checker_samples", "collect_max_steps",

@@ -340,7 +340,7 @@ def benchmark_table(summary: Mapping) -> str:
             lines.append(f"| {level} | {method} | " + " | ".join(cells) + " |")
     config = summary.get("config", {})
     source = {"monitor": "the monitor's ground-truth cost"}.get(
-        config.get("cost_source"), "the checker's alarms"
+        config.get("constrained_cost"), "the checker's alarms"
     )
     lines += ["", f"Interquartile mean over {config.get('seeds')} seeds [95% stratified-"
               "bootstrap interval]; per-seed values in benchmark.json. The constrained "

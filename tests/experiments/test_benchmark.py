@@ -31,7 +31,7 @@ def _fake_results(cfg) -> dict:
     (["--methods", "none,none"], "repeated"),
     (["--levels", "label_timing"], "--levels: unknown"),  # an ablation, not a level
     (["--seeds", "0"], "--seeds must be an integer >= 1"),
-    (["--methods", "none,shield", "--cost-source", "monitor"], "no mode of none,shield"),
+    (["--methods", "none,shield", "--constrained-cost", "monitor"], "no mode of none,shield"),
 ])  # fmt: skip
 def test_bad_flags_are_refused_before_any_compile(argv, message, tmp_path, capsys, compiles):
     with pytest.raises(SystemExit) as exc:
@@ -55,13 +55,13 @@ def test_every_level_runs_through_the_pipeline_then_one_table(tmp_path, monkeypa
 
     monkeypatch.setattr(benchmark, "run_experiment", run)
     argv = ["--quick", "--no-progress", "--levels", "two_rooms,hazard_rooms", "--methods",
-            "none,shaped,lagrangian", "--seeds", "3", "--cost-source", "monitor", "--out",
+            "none,shaped,lagrangian", "--seeds", "3", "--constrained-cost", "monitor", "--out",
             str(tmp_path / "b")]  # fmt: skip
     out = benchmark.main(argv)
     assert [c.experiment for c in ran] == ["two_rooms", "hazard_rooms"]
     for cfg in ran:
         assert cfg.quick and cfg.modes == ("none", "shaped", "lagrangian") and cfg.seeds == 3
-        assert cfg.cost_source == "monitor"
+        assert cfg.constrained_cost == "monitor"
         assert cfg.out == str(tmp_path / "b" / cfg.experiment)
         assert cfg.env_id == EXPERIMENTS[cfg.experiment].env_id
     table = (tmp_path / "b" / "benchmark.md").read_text()

@@ -253,8 +253,8 @@ def test_every_flag_shows_its_default_and_presets_change_them(capsys):
         (["--checker-test-fraction", "0"], "--checker-test-fraction must be > 0"),
         (["--checker-val-fraction", "0.9"], "--checker-test-fraction + --checker-val-fraction"),
         (["--workers", "0"], "--workers must be an integer >= 1, got 0"),
-        (["--cost-source", "oracle"], "--cost-source must be None or one of"),
-        (["--cost-source", "monitor", "--modes", "shaped,shield"], "no mode of shaped,shield"),
+        (["--constrained-cost", "oracle"], "--constrained-cost must be None or one of"),
+        (["--constrained-cost", "monitor", "--modes", "shaped,shield"], "no mode of shaped,shield"),
     ],
 )
 def test_bad_flags_are_usage_errors_naming_the_flag_before_any_compile(
@@ -421,8 +421,8 @@ def test_collection_epsilon_mixes_uniform_actions_into_the_behaviour_agent():
     assert counts.sum() == 4000 and np.all(np.abs(counts / 4000 - 1 / 7) < 0.03), counts
 
 
-def test_the_cost_source_reaches_the_modes_that_can_learn_from_either_only():
-    """--cost-source monitor: the constrained modes learn from the monitor's cost, the
+def test_the_constrained_cost_reaches_the_modes_that_can_learn_from_either_only():
+    """--constrained-cost monitor: the constrained modes learn from the monitor's cost, the
     penalty modes and shields keep their own source (their configs are unchanged)."""
     from experiments import phases
     from experiments.pipeline import preset
@@ -430,7 +430,7 @@ def test_the_cost_source_reaches_the_modes_that_can_learn_from_either_only():
 
     modes = ("checker", "shaped", "lagrangian", "saute", "cpo", "shield")
     base = dataclasses.replace(preset(EXPERIMENTS["two_rooms"], "quick"), modes=modes)
-    cfg = dataclasses.replace(base, cost_source="monitor")
+    cfg = dataclasses.replace(base, constrained_cost="monitor")
     for mode in modes:
         config = phases.ppo_config(cfg, mode)
         either = mode in ("lagrangian", "saute", "cpo")
