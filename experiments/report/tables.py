@@ -339,9 +339,8 @@ def benchmark_table(summary: Mapping) -> str:
                              f"{f['hi'] * scale:.{digits}f}]")  # fmt: skip
             lines.append(f"| {level} | {method} | " + " | ".join(cells) + " |")
     config = summary.get("config", {})
-    source = {"monitor": "the monitor's ground-truth cost"}.get(
-        config.get("constrained_cost"), "the checker's alarms"
-    )
+    monitor = config.get("constrained_cost") == "monitor"
+    source = "the monitor's ground-truth cost" if monitor else "the checker's alarms"
     lines += ["", f"Interquartile mean over {config.get('seeds')} seeds [95% stratified-"
               "bootstrap interval]; per-seed values in benchmark.json. The constrained "
               f"methods learn from {source}."]  # fmt: skip
