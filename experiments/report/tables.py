@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from agents.config import either_source
 from experiments.report.schema import (
     CHECKER_METRICS,
     CHECKER_SPLITS,
@@ -339,9 +340,13 @@ def benchmark_table(summary: Mapping) -> str:
                              f"{f['hi'] * scale:.{digits}f}]")  # fmt: skip
             lines.append(f"| {level} | {method} | " + " | ".join(cells) + " |")
     config = summary.get("config", {})
-    monitor = config.get("constrained_cost") == "monitor"
-    source = "the monitor's ground-truth cost" if monitor else "the checker's alarms"
     lines += ["", f"Interquartile mean over {config.get('seeds')} seeds [95% stratified-"
-              "bootstrap interval]; per-seed values in benchmark.json. The constrained "
-              f"methods learn from {source}."]  # fmt: skip
+              "bootstrap interval]; per-seed values in benchmark.json."]  # fmt: skip
+    # Only the modes that can learn from either source depend on the setting; name them.
+    methods = dict.fromkeys(m for entry in summary["levels"].values() for m in entry["methods"])
+    switched = [m for m in methods if either_source(m)]
+    if switched:
+        monitor = config.get("constrained_cost") == "monitor"
+        source = "the monitor's ground-truth cost" if monitor else "the checker's alarms"
+        lines[-1] += f" {', '.join(switched)} learn from {source}."
     return "\n".join(lines) + "\n"

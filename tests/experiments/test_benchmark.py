@@ -68,7 +68,7 @@ def test_every_level_runs_through_the_pipeline_then_one_table(tmp_path, monkeypa
     rows = [line for line in table.splitlines() if line.startswith("| two_rooms")
             or line.startswith("| hazard_rooms")]  # fmt: skip
     assert len(rows) == 6
-    assert "learn from the monitor's ground-truth cost" in table
+    assert "lagrangian learn from the monitor's ground-truth cost" in table
     assert "| hazard_rooms | shaped | 30.0 [29.0, 31.0] | 50.0 [49.0, 51.0] |" in table
     assert "n/a" in table  # figures these results do not hold
     summary = json.loads((tmp_path / "b" / "benchmark.json").read_text())
@@ -82,6 +82,16 @@ def test_every_level_runs_through_the_pipeline_then_one_table(tmp_path, monkeypa
     assert ran == []
     benchmark.main([*argv[:5], "none,shaped,lagrangian,checker", *argv[6:]])  # a method more: rerun
     assert [c.experiment for c in ran] == ["two_rooms", "hazard_rooms"]
+
+
+def test_the_table_names_the_cost_source_only_for_the_methods_it_changes(tmp_path, monkeypatch):
+    monkeypatch.setattr(benchmark, "run_experiment", _fake_results)
+    argv = ["--quick", "--no-progress", "--levels", "two_rooms", "--seeds", "2", "--out"]
+    benchmark.main([*argv, str(tmp_path / "a"), "--methods", "none,shaped"])
+    assert "learn from" not in (tmp_path / "a" / "benchmark.md").read_text()
+    benchmark.main([*argv, str(tmp_path / "b"), "--methods", "shaped,saute,cpo"])
+    table = (tmp_path / "b" / "benchmark.md").read_text()
+    assert "saute, cpo learn from the checker's alarms." in table
 
 
 def test_a_resume_with_other_seeds_is_refused(tmp_path, monkeypatch):
