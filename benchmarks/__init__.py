@@ -2,6 +2,6 @@
 against the PureJaxRL-style baseline, :mod:`agents.baseline`, also timed alone by
 ``purejaxrl_ppo``), all with one timing protocol (:mod:`agents.timing`)."""
 
-from jaxgrid.rundir import interruptible_if_command
+from jaxgrid.rundir import prepare_command
 
-interruptible_if_command()  # `python -m benchmarks...`: Ctrl-C handled before jax loads
+prepare_command()  # `python -m benchmarks...`: Ctrl-C and a held --out handled before jax loads

@@ -26,9 +26,9 @@ One mechanism with two kinds behind one protocol:
 ``checker`` imports ``jaxgrid`` only (never ``agents`` or ``experiments``).
 """
 
-from jaxgrid.rundir import interruptible_if_command
+from jaxgrid.rundir import prepare_command
 
-interruptible_if_command()  # `python -m checker...`: Ctrl-C handled before jax loads
+prepare_command()  # `python -m checker...`: Ctrl-C and a held --out handled before jax loads
 from checker.data import (
     CheckerDataset,
     collect,

@@ -1,5 +1,5 @@
 """The paper-reproduction experiments (``python -m experiments.<name>``)."""
 
-from jaxgrid.rundir import interruptible_if_command
+from jaxgrid.rundir import prepare_command
 
-interruptible_if_command()  # `python -m experiments...`: Ctrl-C handled before jax loads
+prepare_command()  # `python -m experiments...`: Ctrl-C and a held --out handled before jax loads

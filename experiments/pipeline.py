@@ -405,14 +405,7 @@ def main(row: Experiment, argv=None) -> dict | None:
     naming the file.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
-    outs = [argv[i + 1] if i + 1 < len(argv) else "" for i, a in enumerate(argv) if a == "--out"]
-    outs += [a.split("=", 1)[1] for a in argv if a.startswith("--out=")]
-    try:  # a run already writing into --out: refused at once, before the flags are parsed
-        if outs and outs[-1]:
-            rundir.check_free(outs[-1])
-    except rundir.LockHeld as e:
-        print(f"error: {e}", file=sys.stderr)
-        raise SystemExit(2) from None
+    rundir.refuse_held_out(argv)  # a run already writing into --out: refused at once
     cfg = parse_args(argv, row)
     if cfg.quick:  # a smoke test is all compile time: cheaper compiles (LLVM's optimisations
         # off, XLA:CPU's per-op emitters; float results may differ in the last place). XLA

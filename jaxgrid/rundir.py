@@ -14,6 +14,8 @@
   waiting for a compile or a training chunk in another thread (and without the interpreter's
   teardown, which can crash under a running XLA computation), but never in the middle of a
   write made under :func:`writing`; the run locks it holds are released first.
+- :func:`prepare_command`: what a ``python -m`` command does before jax loads (Ctrl-C
+  handling, a held ``--out`` refused).
 
 Standard library only.
 """
@@ -32,8 +34,8 @@ import threading
 from pathlib import Path
 
 __all__ = ["LOCK_FILE", "LockHeld", "RunLock", "check_free", "exit_now", "interruptible",
-           "interruptible_if_command", "interrupted_message", "lock", "sha256_bytes",
-           "sha256_file", "writing"]
+           "interrupted_message", "lock", "out_flag", "prepare_command", "refuse_held_out",
+           "sha256_bytes", "sha256_file", "writing"]  # fmt: skip
 
 LOCK_FILE = ".lock"
 # Held while an artefact is written that a partial write would damage (a checkpoint and the
@@ -83,13 +85,40 @@ def interruptible() -> None:
     threading.Thread(target=_watch, name="ctrl-c", daemon=True).start()
 
 
-def interruptible_if_command() -> None:
-    """:func:`interruptible` when the importing package is being run as ``python -m
-    <package>.<command>`` (``sys.argv[0]`` is ``"-m"`` while Python imports it); a library
-    import changes nothing. Called first thing by the command packages, so that Ctrl-C is
-    handled from the first second, before jax loads."""
+def out_flag(argv: list[str]) -> str | None:
+    """The value of ``--out`` in ``argv`` (``--out DIR`` or ``--out=DIR``; the last one wins,
+    as with argparse), or None."""
+    out = None
+    for i, a in enumerate(argv):
+        if a == "--out":
+            out = argv[i + 1] if i + 1 < len(argv) else None
+        elif a.startswith("--out="):
+            out = a.split("=", 1)[1]
+    return out or None
+
+
+def refuse_held_out(argv: list[str]) -> None:
+    """Exit with status 2, naming the holder, when a live process holds the lock of
+    ``argv``'s ``--out`` (:func:`check_free`); before the flags are parsed, so a second run on
+    a directory is refused at once."""
+    out = out_flag(argv)
+    try:
+        if out:
+            check_free(out)
+    except LockHeld as e:
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def prepare_command() -> None:
+    """When the importing package is being run as ``python -m <package>.<command>``
+    (``sys.argv[0]`` is ``"-m"`` while Python imports it): :func:`interruptible`, and
+    :func:`refuse_held_out` on the command's flags. A library import changes nothing. Called
+    first thing by the command packages, so that Ctrl-C is handled from the first second and
+    a held ``--out`` is refused before jax loads (which takes seconds)."""
     if sys.argv[:1] == ["-m"] and threading.current_thread() is threading.main_thread():
         interruptible()
+        refuse_held_out(sys.argv[1:])
 
 
 def interrupted_message() -> str:

@@ -218,6 +218,26 @@ def test_check_free_refuses_a_held_lock_and_writes_nothing(tmp_path):
     rundir.check_free(tmp_path / "run")
 
 
+def test_out_flag_reads_both_spellings_the_last_one_winning():
+    from jaxgrid import rundir
+
+    assert rundir.out_flag(["--seed", "1"]) is None
+    assert rundir.out_flag(["--out", "a", "--x"]) == "a"
+    assert rundir.out_flag(["--out=a", "--out", "b"]) == "b"
+    assert rundir.out_flag(["--out", "b", "--out=a"]) == "a"
+    assert rundir.out_flag(["--out"]) is None  # argparse reports the missing value
+
+
+def test_refuse_held_out_exits_2_naming_the_holder(tmp_path, capsys):
+    from jaxgrid import rundir
+
+    rundir.refuse_held_out(["--out", str(tmp_path / "run")])  # free: nothing happens
+    with rundir.lock(tmp_path / "run", "holder-under-test"):
+        with pytest.raises(SystemExit) as e:
+            rundir.refuse_held_out([f"--out={tmp_path / 'run'}"])
+    assert e.value.code == 2 and "holder-under-test" in capsys.readouterr().err
+
+
 def test_holds_declared_default_reads_nested_fields_and_their_classes():
     import dataclasses
 
