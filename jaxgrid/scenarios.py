@@ -13,11 +13,12 @@
 Door colours are distinct and drawn from the five non-green colours; the agent's direction is
 random. Every episode can be solved without a violation: a constraint forbids one door colour
 (and maybe lava) and there is always another way. Constraints are rows of the paper's sentence
-table (:data:`jaxgrid.sentences.PAPER`); the monitor (:mod:`jaxgrid.monitor`) in the state
-judges them, as for every constrained environment: a violation is the agent *entering* a
-forbidden cell (a door of the forbidden colour, or lava when lava is forbidden). Each step
-reports ``info["violation"]``, ``info["cost"]``, ``info["constraint_type"]`` (paper type 1-5)
-and ``info["template_id"]``.
+table (:data:`jaxgrid.sentences.PAPER`), all those of the split or only those given
+(``jaxgrid.make(id, constraint=...)`` or ``constraints=``); the monitor
+(:mod:`jaxgrid.monitor`) in the state judges them, as for every constrained environment: a
+violation is the agent *entering* a forbidden cell (a door of the forbidden colour, or lava
+when lava is forbidden). Each step reports ``info["violation"]``, ``info["cost"]``,
+``info["constraint_type"]`` (paper type 1-5) and ``info["template_id"]``.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ from jaxgrid.contents import Contents
 from jaxgrid.dynamics import get_cell, transition
 from jaxgrid.environment import check_action
 from jaxgrid.paraphrases import SPLITS
+from jaxgrid.sentences import PAPER
 from jaxgrid.types import State, TimeStep
 
 #: Door colours, MiniGrid indices: the five non-green colours the tables name (never the goal's).
@@ -64,11 +66,21 @@ class ScenarioExtras(ConstrainedExtras):
 
 
 @functools.cache
-def _constraint_table(split: str, has_lava: bool) -> dict:
+def _constraint_table(split: str, has_lava: bool, given: tuple[str, ...] | None = None) -> dict:
+    """The split's (template, colour) rows with their monitor ``spec``; with ``given``
+    (normalised sentences), only the rows of the whole table that say one of them."""
     table = sentences.combination_table(split, include_lava=has_lava)
     combos = sentences.split_combinations(split, include_lava=has_lava)
+    if given is not None:
+        keep = np.array([_words(sentences.render(t, c)) in given for t, c in combos])
+        table = {k: v[keep] for k, v in table.items()}
+        combos = [c for c, k in zip(combos, keep, strict=True) if k]
     table["spec"] = M.encode_batch(language.parse(sentences.render(t, c)) for t, c in combos)
     return table
+
+
+def _words(sentence: str) -> str:
+    return " ".join(language.normalize(sentence))
 
 
 def sample_constraint(
@@ -114,8 +126,10 @@ class Scenario(ConstrainedEnvironment):
     split: str = struct.field(pytree_node=False, default="train")
     absent_colour_prob: float = 0.2
     has_lava: bool = struct.field(pytree_node=False, default=False)
+    # Given sentences (rows of the table; jaxgrid.make's constraint=), replacing the split's.
+    sentences: tuple[str, ...] | None = struct.field(pytree_node=False, default=None)
 
-    language_table = sentences.PAPER
+    language_table = PAPER
 
     def __post_init__(self):
         super().__post_init__()
@@ -125,11 +139,51 @@ class Scenario(ConstrainedEnvironment):
         p = self.absent_colour_prob
         if isinstance(p, (int, float)) and not 0 <= p <= 1:
             raise ValueError(f"{name}.absent_colour_prob must be in [0, 1], got {p!r}")
+        if self.sentences is not None:
+            self._check_sentences(self.sentences)
+
+    def _check_sentences(self, given) -> None:
+        name = type(self).__name__
+        table = {_words(sentences.render(t, c)) for t, c in
+                 sentences.split_combinations("all", include_lava=self.has_lava)}  # fmt: skip
+        if isinstance(given, str) or not given:
+            raise ValueError(f"{name}.sentences must be a non-empty tuple of sentences, got "
+                             f"{given!r}")  # fmt: skip
+        for sentence in given:
+            if not isinstance(sentence, str) or _words(sentence) not in table:
+                raise ValueError(
+                    f"{sentence!r} is not a sentence of {name}'s table: its layouts are built "
+                    f"for the paper's templates with a door colour "
+                    f"({len(table)} sentences, listed by jaxgrid.sentences.split_combinations"
+                    f"('all', include_lava={self.has_lava}) and render); give other sentences "
+                    "to HazardRooms-v0 or to a MiniGrid level"
+                )
 
     def constraint_table(self) -> dict:
-        """:func:`jaxgrid.sentences.combination_table` of the split, with ``spec``, each row's
+        """:func:`jaxgrid.sentences.combination_table` of the split (of the whole table, only
+        the rows of ``sentences``, when given), with ``spec``, each row's
         :class:`~jaxgrid.monitor.ClauseSpec` (``(K, NUM_CLAUSES)`` arrays)."""
+        if self.sentences is not None:
+            given = tuple(sorted({_words(s) for s in self.sentences}))
+            return _constraint_table("all", self.has_lava, given)
         return _constraint_table(self.split, self.has_lava)
+
+    def with_sentences(self, given, weights, lava):
+        """This scenario drawing each episode's constraint from the sentences ``given``, rows
+        of its own table: every layout holds a run without a violation of each of them.
+        They replace the split's rows; the draw stays the paper's (a colour no door of the
+        episode has, making that episode's constraint vacuous, with ``absent_colour_prob``
+        where both kinds are among them), so ``weights`` and ``lava`` are refused."""
+        name = type(self).__name__
+        if lava is not None:
+            raise ValueError(f"{name} keeps its own lava rule (lava that the constraint does not "
+                             f"forbid moves the agent next to the goal); lava={lava!r} is for "
+                             "HazardRooms-v0 and the MiniGrid levels")  # fmt: skip
+        if weights is not None:
+            raise ValueError(f"{name} draws its sentences as the paper does (a colour no door "
+                             "has with probability absent_colour_prob, else uniformly); "
+                             "weights= is for HazardRooms-v0 and the MiniGrid levels")  # fmt: skip
+        return self.replace(sentences=tuple(given))
 
     def layout(self, u: jax.Array):
         """``(grid, agent_pos, goal_pos, nameable door colours, all door colours)``."""

@@ -168,7 +168,11 @@ def test_hazard_rooms_takes_sentences_and_weights_through_make():
         (LAVA_ID, dict(constraint="avoid lava", constraints=("avoid lava",)), "one of"),
         (LAVA_ID, dict(constraints="avoid lava"), "a sequence of sentences"),
         (LAVA_ID, dict(constraints=()), "at least one"),
-        ("TwoRooms-v0", dict(constraint="avoid the red door"), "its own table"),
+        ("TwoRooms-v0", dict(constraint="use the red door at most twice"), "not a sentence of Tw"),
+        ("TwoRooms-v0", dict(constraint="do not use the red door", lava="cost"), "own lava rule"),
+        ("TwoRooms-v0", dict(constraints=("do not use the red door",), weights=(1,)), "paper does"),
+        ("TwoRooms-v0", dict(constraints=LEVELS), "its own table"),
+        ("ThreeRoomsKey-v0", dict(sentences=("avoid lava",)), "not a sentence of ThreeRoomsKey"),
         ("HazardRooms-v0", dict(constraint="avoid lava", lava="lethal"), "always costs"),
         ("HazardRooms-v0", dict(constraint="avoid the green door"), "the word 'green'"),
         ("HazardRooms-v0", dict(constraints=LEVELS), "its own table"),
@@ -241,3 +245,29 @@ def test_gymnax_runs_a_constrained_level():
     assert obs.shape == (8, env.observation_space(params).shape[0]) and total > 0
     dict_env, _ = jgx.make(LAVA_ID, observation="dict", constraint="avoid lava")
     assert set(dict_env.observation_space(params).spaces) == {"image", "direction", "constraint"}
+
+
+def test_a_paper_scenario_draws_the_sentences_of_its_table_it_is_given():
+    """Every episode of TwoRooms-Lava given two of its table's sentences says one of them (that
+    row's tokens, template and monitor clauses), in the scenario's own layouts."""
+    from jaxgrid.sentences import PAPER
+
+    said = ("do not use the red door", "Do not use the blue door and stay away from lava.")
+    env = jaxgrid.make("TwoRoomsLava-v0", constraints=said)
+    whole = jaxgrid.make("TwoRoomsLava-v0", split="all").constraint_table()
+    rows = [int(np.flatnonzero((whole["tokens"] == PAPER.tokenize(s)).all(1))[0]) for s in said]
+    keys = jax.random.split(jax.random.PRNGKey(0), 256)
+    states, steps = jax.vmap(env.reset)(keys)
+    c = states.extras.constraint
+    drawn = np.asarray(c.template_id)
+    assert set(drawn.tolist()) == {int(whole["template_id"][r]) for r in rows}  # both, no other
+    for r in rows:
+        mine = drawn == whole["template_id"][r]
+        assert (np.asarray(steps.observation["constraint"])[mine] == whole["tokens"][r]).all()
+        assert (np.asarray(c.door_colour)[mine] == whole["door_colour"][r]).all()
+        for got, want in zip(jax.tree.leaves(states.extras.monitor.spec),
+                             jax.tree.leaves(whole["spec"]), strict=True):  # fmt: skip
+            assert (np.asarray(got)[mine] == np.asarray(want)[r]).all()
+    # the same scenario, its layouts unchanged: the grids of a default reset with the same keys
+    default, _ = jax.vmap(jaxgrid.make("TwoRoomsLava-v0").reset)(keys)
+    assert (np.asarray(default.grid) == np.asarray(states.grid)).all()
