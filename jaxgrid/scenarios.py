@@ -68,19 +68,23 @@ class ScenarioExtras(ConstrainedExtras):
 @functools.cache
 def _constraint_table(split: str, has_lava: bool, given: tuple[str, ...] | None = None) -> dict:
     """The split's (template, colour) rows with their monitor ``spec``; with ``given``
-    (normalised sentences), only the rows of the whole table that say one of them."""
+    (sentences as :data:`PAPER` spells them), only the rows that say one of them."""
     table = sentences.combination_table(split, include_lava=has_lava)
     combos = sentences.split_combinations(split, include_lava=has_lava)
     if given is not None:
-        keep = np.array([_words(sentences.render(t, c)) in given for t, c in combos])
+        keep = np.array([sentences.render(t, c) in given for t, c in combos])
         table = {k: v[keep] for k, v in table.items()}
         combos = [c for c, k in zip(combos, keep, strict=True) if k]
     table["spec"] = M.encode_batch(language.parse(sentences.render(t, c)) for t, c in combos)
     return table
 
 
-def _words(sentence: str) -> str:
-    return " ".join(language.normalize(sentence))
+def _spelled(sentence: str) -> str | None:
+    """``sentence`` as the paper's table spells it (:meth:`SentenceTable.find`), or None."""
+    try:
+        return PAPER.find(sentence).sentence
+    except ValueError:
+        return None
 
 
 def sample_constraint(
@@ -144,13 +148,13 @@ class Scenario(ConstrainedEnvironment):
 
     def _check_sentences(self, given) -> None:
         name = type(self).__name__
-        table = {_words(sentences.render(t, c)) for t, c in
+        table = {sentences.render(t, c) for t, c in
                  sentences.split_combinations("all", include_lava=self.has_lava)}  # fmt: skip
         if isinstance(given, str) or not given:
             raise ValueError(f"{name}.sentences must be a non-empty tuple of sentences, got "
                              f"{given!r}")  # fmt: skip
         for sentence in given:
-            if not isinstance(sentence, str) or _words(sentence) not in table:
+            if not isinstance(sentence, str) or _spelled(sentence) not in table:
                 raise ValueError(
                     f"{sentence!r} is not a sentence of {name}'s table: its layouts are built "
                     f"for the paper's templates with a door colour "
@@ -164,7 +168,7 @@ class Scenario(ConstrainedEnvironment):
         the rows of ``sentences``, when given), with ``spec``, each row's
         :class:`~jaxgrid.monitor.ClauseSpec` (``(K, NUM_CLAUSES)`` arrays)."""
         if self.sentences is not None:
-            given = tuple(sorted({_words(s) for s in self.sentences}))
+            given = tuple(sorted({_spelled(s) for s in self.sentences}))
             return _constraint_table("all", self.has_lava, given)
         return _constraint_table(self.split, self.has_lava)
 
