@@ -39,6 +39,7 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from agents.config import PPOConfig, renamed
 from jaxgrid import io, rundir
@@ -303,11 +304,15 @@ def _check_complete(path: Path, records: list[dict], chunks: int, agents: list[t
         )
 
 
-def restore(manager, step, abstract, shardings):
+def restore(manager, step, abstract, shardings,
+            upgrade: Callable[[dict], dict | None] | None = None):  # fmt: skip
     """The runner state of checkpoint ``step``. A checkpoint written before a
     :class:`RunnerState` field with a default existed is restored without it, and the field
     starts from zeros (such fields are added with zero as their initial value, and are read
-    only by options that the configuration check proves off for such a run)."""
+    only by options that the configuration check proves off for such a run). A checkpoint
+    of an older layout is read as saved and handed to ``upgrade``, which returns it in
+    today's (the :func:`stored` tree of ``abstract``), or None when it knows no such
+    layout."""
     import orbax.checkpoint as ocp
 
     if shardings is not None:
@@ -336,6 +341,10 @@ def restore(manager, step, abstract, shardings):
             break
         except Exception:
             continue
+    if restored is None and upgrade is not None:
+        upgraded = _upgraded_state(manager, step, target, upgrade)
+        if upgraded is not None:
+            return upgraded
     if restored is None:
         raise ResumeError(f"{manager.directory}: checkpoint {step} cannot be restored "
                           f"({type(error).__name__}: {error}); delete it to start over"
@@ -349,6 +358,53 @@ def restore(manager, step, abstract, shardings):
           "starting from zeros", file=sys.stderr)  # fmt: skip
     filled = {n: jax.tree.map(zeros, getattr(target, n)) for n in added}
     return _rebuilt(target, restored).replace(**filled)
+
+
+def _upgraded_state(manager, step, target, upgrade):
+    """Checkpoint ``step`` read in its own layout and ``upgrade``-d to ``target``'s, placed
+    as ``target`` is; None when ``upgrade`` knows no such layout."""
+    import orbax.checkpoint as ocp
+
+    want = stored(target)
+    try:
+        # As saved (plain dicts and lists), for the layout of the parts that changed; then
+        # with today's containers (optax's states, ...) wherever the layout is the same.
+        raw = manager.restore(step, args=ocp.args.StandardRestore())
+        saved = manager.restore(step, args=ocp.args.StandardRestore(_saved_layout(want, raw)))
+        new = upgrade(saved)
+    except ValueError as e:
+        raise ResumeError(f"{manager.directory}: checkpoint {step} is of an older layout "
+                          f"that cannot be read ({e}); delete it to start over") from e  # fmt: skip
+    except Exception:  # orbax's and tensorstore's errors share no base class
+        return None
+    if new is None:
+        return None
+    if jax.tree.structure(new) != jax.tree.structure(want) or any(
+        np.shape(a) != b.shape or np.asarray(a).dtype != b.dtype
+        for a, b in zip(jax.tree.leaves(new), jax.tree.leaves(want), strict=True)
+    ):
+        raise ResumeError(f"{manager.directory}: checkpoint {step}, upgraded from an "
+                          "older layout, does not fit this run's state; delete it to start "
+                          "over")  # fmt: skip
+
+    def place(a, b):
+        sharding = getattr(b, "sharding", None)
+        return jnp.asarray(a) if sharding is None else jax.device_put(np.asarray(a), sharding)
+
+    print(f"{manager.directory}: checkpoint {step} is of an older layout; read it as "
+          "today's", file=sys.stderr)  # fmt: skip
+    return _rebuilt(target, jax.tree.map(place, new, want))
+
+
+def _saved_layout(want, raw):
+    """The restore target of a checkpoint whose tree ``raw`` (as orbax reads it untargeted)
+    differs from ``want`` in some dicts' keys: ``want`` where the keys agree, the saved
+    arrays' shapes where they differ."""
+    if isinstance(want, dict) and isinstance(raw, dict):
+        if set(want) != set(raw):
+            return jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), a.dtype), raw)
+        return {k: _saved_layout(want[k], raw[k]) for k in want}
+    return want
 
 
 # ----------------------------------------------------------------------------------------

@@ -34,6 +34,7 @@ from agents.devices import to_host
 from agents.programs import programs_for
 from agents.train import Learner, make_learner
 from jaxgrid import io
+from jaxgrid.constrained import ConstrainedEnvironment
 
 __all__ = ["EARLY_FRACTION", "Cancelled", "NonFiniteError", "chunk_records", "early_updates",
            "load_agents", "run"]  # fmt: skip
@@ -226,7 +227,8 @@ def run(
             if resume:
                 checkpoint.check_run_info(out, config, seeds, checker, sweep)
                 done_chunks, records = checkpoint.resume_point(manager, out, idents, ident)
-                runner = checkpoint.restore(manager, done_chunks, abstract, shardings)
+                upgrade = functools.partial(_upgrade, learner.env)
+                runner = checkpoint.restore(manager, done_chunks, abstract, shardings, upgrade)
                 for r in records:
                     i = idents.index(ident(r))
                     totals[i] = max(totals[i], r["train/cum_violations"])
@@ -305,6 +307,19 @@ def run(
 
 
 # ----------------------------------------------------------------------------------------
+def _upgrade(env, saved: dict) -> dict | None:
+    """A checkpoint of an older layout (``saved``, as orbax reads it) in today's: the env
+    states' extras through the env's ``upgrade_extras``; None when it knows no older one."""
+    state = saved.get("env", {}).get("state") if isinstance(saved.get("env"), dict) else None
+    if not isinstance(env, ConstrainedEnvironment) or not isinstance(state, dict):
+        return None
+    extras = env.upgrade_extras(state.get("extras"), state.get("grid"))
+    if extras is None:
+        return None
+    state = {**state, "extras": checkpoint.stored(extras)}
+    return {**saved, "env": {**saved["env"], "state": state}}
+
+
 def _agents(sweep: Mapping[str, Sequence[float]], seeds: list[int]) -> tuple[dict, list]:
     """The agents of a run, ordered by swept values (the first name outermost), then seed:
     ``({name: value per agent}, [(seed, *values) per agent])``."""
@@ -401,7 +416,8 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
     abstract = jax.eval_shape(jax.vmap(learner.init), keys, hparams)
     manager = checkpoint.make_manager(out / "checkpoints")
     chunks = checkpoint.verified_step(manager, out, delete=False)
-    state = checkpoint.restore(manager, chunks, abstract, None)
+    upgrade = functools.partial(_upgrade, learner.env)
+    state = checkpoint.restore(manager, chunks, abstract, None, upgrade)
     return {"config": config, "learner": learner, "seeds": seeds, "hparams": hparams,
             "params": state.params, "chunks": chunks,
             "complete": chunks == config.num_chunks}  # fmt: skip

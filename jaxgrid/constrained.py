@@ -143,6 +143,14 @@ class ConstrainedEnvironment(Environment):
             "template_id": c.template_id,
         }
 
+    def upgrade_extras(self, saved: dict, grid: np.ndarray) -> ConstrainedExtras | None:
+        """``state.extras`` in today's layout from ``saved``, extras that earlier code
+        checkpointed (arrays keyed by field name, as orbax restores a pytree, with leading
+        batch axes that ``grid``, ``(..., W, H, 3)``, shares), or None when ``saved`` is no
+        older layout that this environment knows. Raises ``ValueError`` naming what does
+        not fit. The default knows none."""
+        return None
+
     def with_sentences(
         self, sentences: tuple[str, ...], weights: tuple[float, ...] | None, lava: str | None
     ) -> ConstrainedEnvironment:

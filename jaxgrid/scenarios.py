@@ -189,6 +189,51 @@ class Scenario(ConstrainedEnvironment):
                              "weights= is for HazardRooms-v0 and the MiniGrid levels")  # fmt: skip
         return self.replace(sentences=tuple(given))
 
+    def upgrade_extras(self, saved: dict, grid: np.ndarray) -> ScenarioExtras | None:
+        """Extras saved before the constraint and monitor moved into
+        :class:`~jaxgrid.constrained.ConstrainedExtras` (a constraint of ``tokens``,
+        ``template_id``, ``paper_type``, ``door_colour``, ``forbids_lava``, and no monitor):
+        each constraint's row of the table gives its monitor, started on the saved grid.
+        What follows is judged as before: the paper's clauses forbid doors and lava, which no
+        step moves, so the zones are the episode's; their budget is 0, so the events counted
+        before the save (not saved; 0 again) change no later cost or violation."""
+        old = saved.get("constraint")
+        if "monitor" in saved or not isinstance(old, dict) or "paper_type" not in old:
+            return None
+        table = self.constraint_table()
+        batch = np.shape(old["template_id"])
+        template = np.asarray(old["template_id"]).reshape(-1)
+        colour = np.asarray(old["door_colour"]).reshape(-1)
+        match = (template[:, None] == table["template_id"][None]) & (
+            colour[:, None] == table["door_colour"][None]
+        )
+        rows = np.argmax(match, axis=1)
+        tokens = np.asarray(old["tokens"]).reshape(len(rows), -1)
+        lost = ~match.any(axis=1) | np.any(table["tokens"][rows] != tokens, axis=1)
+        if lost.any():
+            i = int(np.argmax(lost))
+            raise ValueError(
+                f"a saved {type(self).__name__} constraint (template {template[i]}, colour "
+                f"{colour[i]}) is no row of this environment's table (split={self.split!r}, "
+                f"has_lava={self.has_lava})"
+            )
+        spec = jax.tree.map(lambda a: jnp.asarray(a)[rows], table["spec"])
+        radius = int(np.max(table["spec"].radius))
+        flat_grid = jnp.asarray(grid).reshape((len(rows),) + np.shape(grid)[len(batch) :])
+        monitor = jax.vmap(lambda s, g: M.start(s, g, radius))(spec, flat_grid)
+        extras = ScenarioExtras(
+            constraint=DoorConstraint(
+                tokens=jnp.asarray(tokens, jnp.int32),
+                type_id=jnp.asarray(table["paper_type"][rows], jnp.int32),
+                template_id=jnp.asarray(template, jnp.int32),
+                door_colour=jnp.asarray(colour, jnp.int32),
+            ),
+            monitor=monitor,
+            goal_pos=jnp.asarray(saved["goal_pos"]).reshape(len(rows), 2),
+            teleport_pos=jnp.asarray(saved["teleport_pos"]).reshape(len(rows), 2),
+        )
+        return jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), extras)
+
     def layout(self, u: jax.Array):
         """``(grid, agent_pos, goal_pos, nameable door colours, all door colours)``."""
         raise NotImplementedError

@@ -354,3 +354,69 @@ def test_bad_config_raises_naming_the_field(name):
     for p in (1.5, -0.1):
         with pytest.raises(ValueError, match="absent_colour_prob"):
             jaxgrid.make(name, absent_colour_prob=p)
+
+
+def _older_layout(env, extras) -> dict:
+    """``extras`` as checkpoints saved them before the constraint and monitor moved into
+    ``ConstrainedExtras``: the constraint with ``paper_type`` and ``forbids_lava``, no
+    monitor (``tests/fixtures/run_dirs/two_rooms_before`` holds a real one)."""
+    table, c = env.constraint_table(), extras.constraint
+    same = (np.asarray(c.template_id)[:, None] == table["template_id"][None]) & (
+        np.asarray(c.door_colour)[:, None] == table["door_colour"][None]
+    )
+    row = np.argmax(same, axis=1)
+    return {"constraint": {"door_colour": np.asarray(c.door_colour),
+                           "forbids_lava": np.asarray(table["forbids_lava"][row], bool),
+                           "paper_type": np.asarray(c.type_id),
+                           "template_id": np.asarray(c.template_id),
+                           "tokens": np.asarray(c.tokens)},
+            "goal_pos": np.asarray(extras.goal_pos),
+            "teleport_pos": np.asarray(extras.teleport_pos)}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_extras_of_the_older_layout_upgrade_to_the_episodes_own(name):
+    """Mid-episode states (doors opened, keys carried, lava entered) saved in the older
+    layout come back with their own constraint and monitor (events counted before the
+    save restart at 0), and every later step costs and violates as it would have."""
+    env = jaxgrid.make(name)
+    actions = jax.random.choice(jax.random.PRNGKey(5), 7, (160, 256), p=jnp.asarray(
+        [0.15, 0.15, 0.45, 0.1, 0.0, 0.15, 0.0]))  # fmt: skip
+
+    def walk(states, acts):
+        def step(s, a):
+            s, ts = jax.vmap(env.step)(s, a)
+            return s, (ts.info["cost"], ts.info["violation"], ts.observation["image"])
+
+        return jax.lax.scan(step, states, acts)
+
+    walk = jax.jit(walk, compiler_options=CHEAP)
+    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(4), 256))
+    middle, _ = walk(states, actions[:60])
+    older = _older_layout(env, middle.extras)
+    upgraded = env.upgrade_extras(older, np.asarray(middle.grid))
+    assert env.upgrade_extras({**older, "monitor": {}}, middle.grid) is None  # today's layout
+    constraint = middle.extras.constraint
+    for got, want in zip(
+        jax.tree.leaves(upgraded.constraint), jax.tree.leaves(constraint), strict=True
+    ):
+        np.testing.assert_array_equal(got, want)
+    mine, theirs = upgraded.monitor, middle.extras.monitor
+    for field in ("zone", "trigger_cells", "triggered"):
+        np.testing.assert_array_equal(getattr(mine, field), getattr(theirs, field), err_msg=field)
+    jax.tree.map(np.testing.assert_array_equal, mine.spec, theirs.spec)
+    assert not np.asarray(mine.count).any()
+    _, after = walk(middle, actions[60:])
+    _, again = walk(middle.replace(extras=upgraded), actions[60:])
+    assert float(after[1].sum()) > 0  # later violations are judged
+    for got, want in zip(again, after, strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_extras_of_no_row_of_the_table_are_refused_by_name():
+    env = jaxgrid.make("TwoRooms-v0")
+    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
+    old = _older_layout(env, states.extras)
+    old["constraint"]["template_id"] = np.full(4, 99, np.int32)
+    with pytest.raises(ValueError, match="no row of this environment's table"):
+        env.upgrade_extras(old, np.asarray(states.grid))
