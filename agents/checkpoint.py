@@ -1,6 +1,7 @@
 """The saved state of :func:`agents.runner.run`'s ``out_dir``: orbax checkpoints that cannot
-collide, resume only from state whose files and logged records match recorded sha256 digests,
-and ``run.json``, which names the configuration, seeds and checker a resume must match.
+collide and resume only from state whose files and logged records match recorded sha256
+digests (``run.json``, which names the configuration, seeds and checker a resume must match,
+is :mod:`agents.run_record`'s).
 
 - **One save at a time per process.** orbax pairs the background writes of a save with the
   directories they wait for through a process-wide operation id
@@ -20,10 +21,8 @@ and ``run.json``, which names the configuration, seeds and checker a resume must
   results. An entry without ``"records"`` (written before records were digested: a flat
   ``{file: sha256}``) verifies its files for :func:`verified_step`, but its records are
   unverified, so :func:`resume_point` never resumes from it.
-- **Run info.** ``run.json`` holds the :class:`~agents.config.PPOConfig` (less its seed),
-  the seeds of every agent, the checker's parameter digest and any sweep
-  (:func:`write_run_info`); :func:`check_run_info` refuses a resume that differs from it,
-  :func:`read_run_info` reads its configuration back.
+- **Older layouts.** A checkpoint saved before a state field with a default existed, or in
+  an older layout that an ``upgrade`` of :func:`restore` knows, is read as today's.
 
 Knows nothing of the training loop (no import of :mod:`agents.runner`).
 """
@@ -34,25 +33,22 @@ import dataclasses
 import json
 import sys
 import threading
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agents.config import PPOConfig, renamed
+from agents.config import PPOConfig
 from jaxgrid import io, rundir
 
-__all__ = ["DIGESTS", "METRICS", "RUN_INFO", "CheckpointError", "ResumeError",
-           "check_run_info", "checker_sha256", "finished", "kept", "make_manager",
-           "read_run_info", "record_digests", "records_sha256", "restore", "resume_point",
-           "run_info", "save", "saved_config", "stored", "verified_step",
-           "write_run_info"]  # fmt: skip
+__all__ = ["DIGESTS", "METRICS", "CheckpointError", "ResumeError", "finished", "kept",
+           "make_manager", "record_digests", "records_sha256", "restore", "resume_point",
+           "save", "stored", "verified_step"]  # fmt: skip
 
 DIGESTS = "checkpoints.json"
 METRICS = "metrics.jsonl"
-RUN_INFO = "run.json"
 _SAVING = threading.Lock()  # orbax's operation id is process-wide: one save at a time
 
 
@@ -309,10 +305,9 @@ def restore(manager, step, abstract, shardings,
     """The runner state of checkpoint ``step``. A checkpoint written before a
     :class:`RunnerState` field with a default existed is restored without it, and the field
     starts from zeros (such fields are added with zero as their initial value, and are read
-    only by options that the configuration check proves off for such a run). A checkpoint
-    of an older layout is read as saved and handed to ``upgrade``, which returns it in
-    today's (the :func:`stored` tree of ``abstract``), or None when it knows no such
-    layout."""
+    only by options that the configuration check proves off for such a run). One of an
+    older layout goes to ``upgrade``, which returns it as today's :func:`stored` tree (None:
+    no layout it knows)."""
     import orbax.checkpoint as ocp
 
     if shardings is not None:
@@ -342,9 +337,9 @@ def restore(manager, step, abstract, shardings,
         except Exception:
             continue
     if restored is None and upgrade is not None:
-        upgraded = _upgraded_state(manager, step, target, upgrade)
-        if upgraded is not None:
-            return upgraded
+        restored = _upgraded_state(manager, step, target, upgrade)
+        if restored is not None:
+            return restored
     if restored is None:
         raise ResumeError(f"{manager.directory}: checkpoint {step} cannot be restored "
                           f"({type(error).__name__}: {error}); delete it to start over"
@@ -361,157 +356,47 @@ def restore(manager, step, abstract, shardings,
 
 
 def _upgraded_state(manager, step, target, upgrade):
-    """Checkpoint ``step`` read in its own layout and ``upgrade``-d to ``target``'s, placed
-    as ``target`` is; None when ``upgrade`` knows no such layout."""
+    """Checkpoint ``step`` read in its own layout, ``upgrade``-d and placed as ``target``;
+    None when it cannot be read so or ``upgrade`` knows no such layout."""
     import orbax.checkpoint as ocp
 
     want = stored(target)
-    try:
-        # As saved (plain dicts and lists), for the layout of the parts that changed; then
-        # with today's containers (optax's states, ...) wherever the layout is the same.
-        raw = manager.restore(step, args=ocp.args.StandardRestore())
+    try:  # untargeted (dicts and lists) for the changed parts' layout, then with today's
+        raw = manager.restore(step, args=ocp.args.StandardRestore())  # containers elsewhere
         saved = manager.restore(step, args=ocp.args.StandardRestore(_saved_layout(want, raw)))
-        new = upgrade(saved)
-    except ValueError as e:
-        raise ResumeError(f"{manager.directory}: checkpoint {step} is of an older layout "
-                          f"that cannot be read ({e}); delete it to start over") from e  # fmt: skip
     except Exception:  # orbax's and tensorstore's errors share no base class
         return None
+    try:
+        new = upgrade(saved)
+    except ValueError as e:
+        raise ResumeError(f"{manager.directory}: checkpoint {step}, of an older layout, "
+                          f"cannot be read ({e}); delete it to start over") from e  # fmt: skip
     if new is None:
         return None
     if jax.tree.structure(new) != jax.tree.structure(want) or any(
         np.shape(a) != b.shape or np.asarray(a).dtype != b.dtype
         for a, b in zip(jax.tree.leaves(new), jax.tree.leaves(want), strict=True)
     ):
-        raise ResumeError(f"{manager.directory}: checkpoint {step}, upgraded from an "
-                          "older layout, does not fit this run's state; delete it to start "
-                          "over")  # fmt: skip
-
-    def place(a, b):
-        sharding = getattr(b, "sharding", None)
-        return jnp.asarray(a) if sharding is None else jax.device_put(np.asarray(a), sharding)
-
+        raise ResumeError(f"{manager.directory}: checkpoint {step}, of an older layout, does "
+                          "not fit this run's state; delete it to start over")  # fmt: skip
     print(f"{manager.directory}: checkpoint {step} is of an older layout; read it as "
           "today's", file=sys.stderr)  # fmt: skip
-    return _rebuilt(target, jax.tree.map(place, new, want))
+    return _rebuilt(target, jax.tree.map(_placed, new, want))
+
+
+def _placed(a, like):
+    sharding = getattr(like, "sharding", None)
+    return jnp.asarray(a) if sharding is None else jax.device_put(np.asarray(a), sharding)
 
 
 def _saved_layout(want, raw):
-    """The restore target of a checkpoint whose tree ``raw`` (as orbax reads it untargeted)
-    differs from ``want`` in some dicts' keys: ``want`` where the keys agree, the saved
-    arrays' shapes where they differ."""
+    """A restore target for a checkpoint whose untargeted tree ``raw`` differs from ``want``
+    in some dicts' keys: ``want`` where they agree, ``raw``'s shapes where they differ."""
     if isinstance(want, dict) and isinstance(raw, dict):
         if set(want) != set(raw):
             return jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), a.dtype), raw)
         return {k: _saved_layout(want[k], raw[k]) for k in want}
     return want
-
-
-# ----------------------------------------------------------------------------------------
-# Run info: run.json
-# ----------------------------------------------------------------------------------------
-def checker_sha256(checker) -> str | None:
-    """Identifies the checker's parameters (``None`` without a checker), so that a resume or
-    a load with another checker is refused."""
-    if checker is None:
-        return None
-    from flax import serialization
-
-    return rundir.sha256_bytes(serialization.to_bytes(jax.device_get(checker.params)))
-
-
-def run_info(config: PPOConfig, seeds: list[int], checker=None,
-             sweep: Mapping[str, Sequence[float]] | None = None) -> dict:  # fmt: skip
-    """What ``run.json`` holds for a run: ``config`` (its fields less ``seed``, as JSON),
-    ``seeds`` (one per agent), ``checker_sha256`` and, only with a sweep, ``sweep``."""
-    fields = {k: v for k, v in dataclasses.asdict(config).items() if k != "seed"}
-    info = {"config": fields, "seeds": seeds, "checker_sha256": checker_sha256(checker)}
-    if sweep:  # absent without a sweep: run.json as before
-        info["sweep"] = {n: [float(v) for v in values] for n, values in sweep.items()}
-    return json.loads(json.dumps(info, default=repr))
-
-
-def write_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None,
-                   sweep: Mapping[str, Sequence[float]] | None = None) -> None:  # fmt: skip
-    """Write :func:`run_info` to ``out/run.json``."""
-    io.write_json(out / RUN_INFO, run_info(config, seeds, checker, sweep))
-
-
-def check_run_info(out: Path, config: PPOConfig, seeds: list[int], checker=None,
-                   sweep: Mapping[str, Sequence[float]] | None = None) -> None:  # fmt: skip
-    """Refuse to resume a run made with another configuration, sweep or other seeds
-    (``ValueError``) and a damaged, missing or other checker's ``run.json``
-    (:class:`ResumeError`). A config field missing from the file (written before the field
-    existed) matches while ``config`` holds the field's declared default."""
-    path = out / RUN_INFO
-    start_over = "delete it to start over"
-    try:
-        saved = _upgraded(io.read_json(path))
-        saved["seeds"]
-    except FileNotFoundError:
-        raise ResumeError(f"{path}: missing, so the checkpoints in {out / 'checkpoints'} cannot "
-                          f"be matched to a configuration; {start_over}") from None  # fmt: skip
-    except (ValueError, TypeError, KeyError) as e:
-        raise ResumeError(f"{path}: damaged ({e}); {start_over}") from None
-    now = run_info(config, seeds, checker, sweep)
-    if saved.get("checker_sha256") != now["checker_sha256"]:
-        raise ResumeError(f"{path}: the run in {out} was made with another checker; "
-                          f"{start_over}")  # fmt: skip
-    if saved.get("sweep") != now.get("sweep"):
-        raise ValueError(
-            f"cannot resume {out}: it was run with sweep {saved.get('sweep')}, not "
-            f"{now.get('sweep')} (pass resume=False to start over, or another out_dir)"
-        )
-    if saved["seeds"] != now["seeds"]:
-        raise ValueError(
-            f"cannot resume {out}: it was run with seeds {saved['seeds']}, not {seeds} "
-            "(pass resume=False to start over, or another out_dir)"
-        )
-    diff = sorted(
-        k for k in set(saved["config"]) | set(now["config"])
-        if saved["config"].get(k) != now["config"].get(k)
-        and not (k not in saved["config"] and io.holds_declared_default(config, k))
-    )  # fmt: skip
-    if diff:
-        raise ValueError(
-            f"cannot resume {out}: PPOConfig differs in {diff} (saved "
-            f"{ {k: saved['config'].get(k) for k in diff} }); pass resume=False to start "
-            "over, or another out_dir"
-        )
-
-
-def read_run_info(out: Path) -> dict:
-    """``out/run.json`` as :func:`write_run_info` wrote it; a ``ValueError`` naming the
-    directory if there is none (no run there) or the file if it is damaged."""
-    try:
-        info = _upgraded(io.read_json(out / RUN_INFO))
-    except FileNotFoundError:
-        raise ValueError(f"{out}: no run.json, so no run of agents.runner.run") from None
-    except (ValueError, TypeError, KeyError) as e:
-        raise ValueError(f"{out / RUN_INFO}: damaged ({e})") from None
-    return info
-
-
-def _upgraded(info: dict) -> dict:
-    """A ``run.json`` record with the settings of its config and sweep under today's names
-    (:data:`agents.config.RENAMED`); a ``KeyError`` or ``TypeError`` if it has no config."""
-    if not isinstance(info["config"], dict):
-        raise TypeError(f"its config is {type(info['config']).__name__}, not an object")
-    info = {**info, "config": renamed(info["config"])}
-    if info.get("sweep") is not None:
-        info["sweep"] = renamed(info["sweep"])
-    return info
-
-
-def saved_config(info: dict) -> PPOConfig:
-    """The :class:`PPOConfig` of a :func:`read_run_info` record (JSON lists back to the
-    config's tuples; fields this code no longer knows are dropped)."""
-
-    def tuples(x):
-        return tuple(map(tuples, x)) if isinstance(x, list) else x
-
-    known = {f.name for f in dataclasses.fields(PPOConfig)}
-    return PPOConfig(**{k: tuples(v) for k, v in info["config"].items() if k in known})
 
 
 def finished(out: Path, config: PPOConfig) -> bool:

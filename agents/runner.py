@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import multihost_utils
 
-from agents import checkpoint
+from agents import checkpoint, run_record
 from agents.config import PPOConfig, check_sweep
 from agents.devices import to_host
 from agents.programs import programs_for
@@ -225,7 +225,7 @@ def run(
         runner = None
         if manager is not None and manager.latest_step() is not None:
             if resume:
-                checkpoint.check_run_info(out, config, seeds, checker, sweep)
+                run_record.check_run_info(out, config, seeds, checker, sweep)
                 done_chunks, records = checkpoint.resume_point(manager, out, idents, ident)
                 upgrade = functools.partial(_upgrade, learner.env)
                 runner = checkpoint.restore(manager, done_chunks, abstract, shardings, upgrade)
@@ -243,7 +243,7 @@ def run(
         if runner is None:
             runner = init(keys, hparams)
         if out is not None and primary:
-            checkpoint.write_run_info(out, config, seeds, checker, sweep)
+            run_record.write_run_info(out, config, seeds, checker, sweep)
             io.write_jsonl(out / checkpoint.METRICS, records)
 
         bar = _progress(
@@ -398,11 +398,11 @@ def load_agents(out_dir: str | os.PathLike, checker=None) -> dict:
     (stacked over agents), ``chunks`` (chunks done) and ``complete``.
     """
     out = Path(out_dir)
-    info = checkpoint.read_run_info(out)
+    info = run_record.read_run_info(out)
     if not (out / "checkpoints").is_dir():
         raise ValueError(f"{out / 'checkpoints'}: no checkpoint")
-    config = checkpoint.saved_config(info)
-    if checkpoint.checker_sha256(checker) != info.get("checker_sha256"):
+    config = run_record.saved_config(info)
+    if run_record.checker_sha256(checker) != info.get("checker_sha256"):
         raise ValueError(f"{out}: the run was trained with "
                          f"{'another checker' if info.get('checker_sha256') else 'no checker'}"
                          f"{'' if checker is not None else ' (pass its checker)'}")  # fmt: skip

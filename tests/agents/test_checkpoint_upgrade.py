@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents import checkpoint
+from agents import checkpoint, run_record
 from agents.runner import run
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "run_dirs"
@@ -39,8 +39,8 @@ def old_run(tmp_path) -> Path:
 
 
 def test_a_checkpoint_of_the_older_layout_resumes_as_the_old_code_went_on(old_run, capfd):
-    info = checkpoint.read_run_info(old_run)
-    config = checkpoint.saved_config(info)
+    info = run_record.read_run_info(old_run)
+    config = run_record.saved_config(info)
     assert checkpoint.resume_point(checkpoint.make_manager(old_run / "checkpoints"), old_run,
                                    [(s,) for s in info["seeds"]], lambda r: (r["seed"],)
                                    )[0] == 1  # fmt: skip
@@ -61,9 +61,9 @@ def test_a_checkpoint_of_the_older_layout_resumes_as_the_old_code_went_on(old_ru
 def test_a_damaged_older_checkpoint_is_refused_by_name(old_run):
     """An older layout that the upgrade cannot place (a constraint of no row of the table)
     is a ResumeError naming the checkpoint, not a silent fresh start."""
-    info = checkpoint.read_run_info(old_run)
-    config = checkpoint.saved_config(info)
+    info = run_record.read_run_info(old_run)
+    config = run_record.saved_config(info)
     other = dataclasses.replace(config, env_kwargs={"split": "heldout"})
-    checkpoint.write_run_info(old_run, other, info["seeds"])
+    run_record.write_run_info(old_run, other, info["seeds"])
     with pytest.raises(checkpoint.ResumeError, match="older layout"):
         run(other, seeds=info["seeds"], out_dir=old_run, progress=False)
