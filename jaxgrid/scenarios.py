@@ -19,6 +19,12 @@ table (:data:`jaxgrid.sentences.PAPER`), all those of the split or only those gi
 violation is the agent *entering* a forbidden cell (a door of the forbidden colour, or lava
 when lava is forbidden). Each step reports ``info["violation"]``, ``info["cost"]``,
 ``info["constraint_type"]`` (paper type 1-5) and ``info["template_id"]``.
+
+Any other sentence of the language (a budget, a sequence, a distance, or paper sentences with
+``weights=`` or ``lava=``) constrains the scenario's layouts as every MiniGrid level is
+constrained (:func:`jaxgrid.constrained.constrain` of :class:`ScenarioLayouts`, the same
+layouts seed for seed): MiniGrid's lava (or ``lava="cost"``), tokens of the levels' table,
+and no promise that an episode can be solved without a violation.
 """
 
 from __future__ import annotations
@@ -44,10 +50,15 @@ from jaxgrid.constants import (
     LOCKED,
     WALL_CELL,
 )
-from jaxgrid.constrained import ConstrainedEnvironment, ConstrainedExtras, DoorConstraint
+from jaxgrid.constrained import (
+    ConstrainedEnvironment,
+    ConstrainedExtras,
+    DoorConstraint,
+    constrain,
+)
 from jaxgrid.contents import Contents
 from jaxgrid.dynamics import get_cell, transition
-from jaxgrid.environment import check_action
+from jaxgrid.environment import Environment, check_action
 from jaxgrid.paraphrases import SPLITS
 from jaxgrid.sentences import PAPER
 from jaxgrid.types import State, TimeStep
@@ -77,6 +88,13 @@ def _constraint_table(split: str, has_lava: bool, given: tuple[str, ...] | None 
         combos = [c for c, k in zip(combos, keep, strict=True) if k]
     table["spec"] = M.encode_batch(language.parse(sentences.render(t, c)) for t, c in combos)
     return table
+
+
+@functools.cache
+def _table_sentences(has_lava: bool) -> frozenset[str]:
+    """Every sentence of the scenarios' table (with lava's rows or without), as spelled."""
+    combos = sentences.split_combinations("all", include_lava=has_lava)
+    return frozenset(sentences.render(t, c) for t, c in combos)
 
 
 def _spelled(sentence: str) -> str | None:
@@ -148,8 +166,7 @@ class Scenario(ConstrainedEnvironment):
 
     def _check_sentences(self, given) -> None:
         name = type(self).__name__
-        table = {sentences.render(t, c) for t, c in
-                 sentences.split_combinations("all", include_lava=self.has_lava)}  # fmt: skip
+        table = _table_sentences(self.has_lava)
         if isinstance(given, str) or not given:
             raise ValueError(f"{name}.sentences must be a non-empty tuple of sentences, got "
                              f"{given!r}")  # fmt: skip
@@ -159,8 +176,8 @@ class Scenario(ConstrainedEnvironment):
                     f"{sentence!r} is not a sentence of {name}'s table: its layouts are built "
                     f"for the paper's templates with a door colour "
                     f"({len(table)} sentences, listed by jaxgrid.sentences.split_combinations"
-                    f"('all', include_lava={self.has_lava}) and render); give other sentences "
-                    "to HazardRooms-v0 or to a MiniGrid level"
+                    f"('all', include_lava={self.has_lava}) and render); "
+                    f"jaxgrid.make(id, constraint=...) constrains its layouts with any other"
                 )
 
     def constraint_table(self) -> dict:
@@ -172,22 +189,20 @@ class Scenario(ConstrainedEnvironment):
             return _constraint_table("all", self.has_lava, given)
         return _constraint_table(self.split, self.has_lava)
 
-    def with_sentences(self, given, weights, lava):
-        """This scenario drawing each episode's constraint from the sentences ``given``, rows
-        of its own table: every layout holds a run without a violation of each of them.
-        They replace the split's rows; the draw stays the paper's (a colour no door of the
-        episode has, making that episode's constraint vacuous, with ``absent_colour_prob``
-        where both kinds are among them), so ``weights`` and ``lava`` are refused."""
-        name = type(self).__name__
-        if lava is not None:
-            raise ValueError(f"{name} keeps its own lava rule (lava that the constraint does not "
-                             f"forbid moves the agent next to the goal); lava={lava!r} is for "
-                             "HazardRooms-v0 and the MiniGrid levels")  # fmt: skip
-        if weights is not None:
-            raise ValueError(f"{name} draws its sentences as the paper does (a colour no door "
-                             "has with probability absent_colour_prob, else uniformly); "
-                             "weights= is for HazardRooms-v0 and the MiniGrid levels")  # fmt: skip
-        return self.replace(sentences=tuple(given))
+    def with_sentences(self, given, weights, lava) -> ConstrainedEnvironment:
+        """This scenario drawing each episode's constraint from the sentences ``given``.
+
+        Rows of its own table, without ``weights`` or ``lava``: they replace the split's rows,
+        every layout holds a run without a violation of each, and the draw and the lava rule
+        stay the paper's (a colour no door of the episode has, making that episode's
+        constraint vacuous, with ``absent_colour_prob`` where both kinds are among them).
+        Otherwise its layouts are constrained as a MiniGrid level is (see the module
+        docstring)."""
+        table = _table_sentences(self.has_lava)
+        if weights is None and lava is None and all(_spelled(s) in table for s in given):
+            return self.replace(sentences=tuple(given))
+        return constrain(ScenarioLayouts.of(self), constraints=tuple(given), weights=weights,
+                         lava=lava, name=type(self).__name__)  # fmt: skip
 
     def upgrade_extras(self, saved: dict, grid: np.ndarray) -> ScenarioExtras | None:
         """Extras saved before the constraint and monitor moved into
@@ -275,6 +290,30 @@ class Scenario(ConstrainedEnvironment):
         terminated = terminated & ~teleport
         info = self.step_info(new, violation, cost)
         return new, self.make_timestep(new, reward, terminated, truncated, info)
+
+
+class ScenarioLayouts(Environment, kw_only=True):
+    """A scenario's layouts as a plain MiniGrid level: the scenario's grid, agent and goal
+    seed for seed, MiniGrid's step (lethal lava, no teleport) and no constraint; the level
+    that sentences outside the paper's table constrain. Build it with :meth:`of`."""
+
+    scenario: Scenario
+
+    @classmethod
+    def of(cls, scenario: Scenario) -> ScenarioLayouts:
+        config = ("width", "height", "max_steps", "view_size", "see_through_walls")
+        return cls(**{k: getattr(scenario, k) for k in config}, scenario=scenario)
+
+    def min_size(self):
+        return self.scenario.min_size()
+
+    def contents(self) -> Contents:
+        return self.scenario.contents()
+
+    def generate(self, key: jax.Array) -> State:
+        u = jax.random.uniform(key, (self.scenario.NUM_UNIFORMS + 2,))  # as Scenario.generate
+        grid, agent, _, _, _ = self.scenario.layout(u)
+        return self.init_state(grid, agent, G.randint(u[-2], 0, 4), key)
 
 
 def _next_to(grid: jax.Array, pos: jax.Array) -> jax.Array:

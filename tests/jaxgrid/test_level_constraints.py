@@ -168,9 +168,10 @@ def test_hazard_rooms_takes_sentences_and_weights_through_make():
         (LAVA_ID, dict(constraint="avoid lava", constraints=("avoid lava",)), "one of"),
         (LAVA_ID, dict(constraints="avoid lava"), "a sequence of sentences"),
         (LAVA_ID, dict(constraints=()), "at least one"),
-        ("TwoRooms-v0", dict(constraint="use the red door at most twice"), "not a sentence of Tw"),
-        ("TwoRooms-v0", dict(constraint="do not use the red door", lava="cost"), "own lava rule"),
-        ("TwoRooms-v0", dict(constraints=("do not use the red door",), weights=(1,)), "paper does"),
+        ("ThreeRoomsKey-v0", dict(constraint="never stand next to lava"), "the word 'lava'"),
+        ("TwoRooms-v0", dict(constraint="use the green door at most twice"), "the word 'green'"),
+        ("TwoRooms-v0", dict(constraint="avoid the red door", lava="soft"), "lava must be one of"),
+        ("TwoRooms-v0", dict(constraints=("avoid lava",)), "the word 'lava'"),
         ("TwoRooms-v0", dict(constraints=LEVELS), "its own table"),
         ("ThreeRoomsKey-v0", dict(sentences=("avoid lava",)), "not a sentence of ThreeRoomsKey"),
         ("HazardRooms-v0", dict(constraint="avoid lava", lava="lethal"), "always costs"),
@@ -271,3 +272,36 @@ def test_a_paper_scenario_draws_the_sentences_of_its_table_it_is_given():
     # the same scenario, its layouts unchanged: the grids of a default reset with the same keys
     default, _ = jax.vmap(jaxgrid.make("TwoRoomsLava-v0").reset)(keys)
     assert (np.asarray(default.grid) == np.asarray(states.grid)).all()
+
+
+def test_a_paper_scenario_given_other_sentences_constrains_its_layouts_as_a_level():
+    """A budget, a sequence or a distance (or weights=, lava=) on a paper scenario: its own
+    layouts (grid, agent, direction seed for seed) constrained as a MiniGrid level is, with
+    the levels' tokens and the draw's weights; its table's sentences alone keep the paper's."""
+    from jaxgrid.constrained import ConstrainedLevel
+    from jaxgrid.scenarios import ScenarioLayouts
+
+    keys = jax.random.split(jax.random.PRNGKey(1), 512)
+    cases = [
+        ("TwoRooms-v0", dict(constraint="use the red door at most twice")),
+        ("TwoRoomsLava-v0", dict(constraints=("never stand next to lava", "avoid the red door"),
+                                 weights=(1, 3), lava="cost")),
+        ("ThreeRoomsKey-v0", dict(constraint="after you pick up the key, do not use the red door")),
+        ("TwoRooms-v0", dict(constraint="do not use the red door", lava="cost")),
+    ]  # fmt: skip
+    for env_id, kwargs in cases:
+        env = jaxgrid.make(env_id, **kwargs)
+        assert isinstance(env, ConstrainedLevel) and isinstance(env.level, ScenarioLayouts)
+        assert env.language_table is LEVELS and env.lava == kwargs.get("lava", "lethal")
+        states, steps = jax.vmap(env.reset)(keys)
+        paper, _ = jax.vmap(jaxgrid.make(env_id).reset)(keys)
+        for field in ("grid", "agent_pos", "agent_dir"):
+            same = np.asarray(getattr(states, field)) == np.asarray(getattr(paper, field))
+            assert same.all(), (env_id, field)
+        tokens = np.asarray(steps.observation["constraint"])
+        said = [int(np.flatnonzero((env.constraint_table()["tokens"] == t).all(1))[0])
+                for t in tokens]  # fmt: skip
+        share = np.bincount(said, minlength=len(env.draw.sentences)) / len(keys)
+        np.testing.assert_allclose(share, env.draw.weights, atol=0.06)
+    assert not isinstance(jaxgrid.make("TwoRooms-v0", constraint="avoid the red door"),
+                          ConstrainedLevel)  # fmt: skip

@@ -1,12 +1,13 @@
 """The monitor on constrained MiniGrid levels, exactly, and the levels' own step rules kept.
 
 Exactness: for every family of levels (one id each; a map of floors, lava, doors and objects
-for the fixed levels), episodes with a constraint of every type the level can say (drawn each
-type equally often from the levels' table, and conjunctions of its rows), with
-``lava="cost"`` and lethal lava, are played with biased random actions; every step's
-``cost`` and ``violation`` must equal those of ``helpers.monitor_reference``, which judges the
-parsed sentence from the states alone with Python loops. ``-m slow`` checks at least 10,000
-steps per (family, constraint type, lava rule); the default run 1,000 on a few families.
+for the fixed levels; the paper scenarios' layouts), episodes with a constraint of every type
+the level can say (drawn each type equally often from the levels' table, and conjunctions of
+its rows), with ``lava="cost"`` and lethal lava, are played with biased random actions;
+every step's ``cost`` and ``violation`` must equal those of ``helpers.monitor_reference``,
+which judges the parsed sentence from the states alone with Python loops. ``-m slow`` checks
+at least 10,000 steps per (family, constraint type, lava rule); the default run 1,000 on a
+few families.
 
 Step rules: a constrained level's step is its level's own step, to the bit: from the same
 states and actions, the state (the level's part), reward, termination, truncation, discount,
@@ -58,6 +59,9 @@ FAMILIES = [
     ("missions GoToDoor", "MiniGrid-GoToDoor-5x5-v0"),
     ("playground", "MiniGrid-Playground-v0"),
     ("obstructed", "MiniGrid-ObstructedMaze-1Dlh-v0"),
+    # the paper scenarios' layouts, constrained as a level by sentences outside their table
+    ("scenarios TwoRoomsLava", "TwoRoomsLava-v0"),
+    ("scenarios ThreeRoomsKey", "ThreeRoomsKey-v0"),
     ("fixed", FIXED),
 ]
 DEFAULT_FAMILIES = {"classic LavaGap", "keys", "fixed"}
