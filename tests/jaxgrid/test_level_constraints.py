@@ -305,3 +305,40 @@ def test_a_paper_scenario_given_other_sentences_constrains_its_layouts_as_a_leve
         np.testing.assert_allclose(share, env.draw.weights, atol=0.06)
     assert not isinstance(jaxgrid.make("TwoRooms-v0", constraint="avoid the red door"),
                           ConstrainedLevel)  # fmt: skip
+
+
+# The scenarios and two MiniGrid levels in the default run; every id with -m slow.
+_EVERY_TYPE_DEFAULT = {"TwoRooms-v0", "TwoRoomsLava-v0", "ThreeRoomsKey-v0", "HazardRooms-v0",
+                       "MiniGrid-DoorKey-5x5-v0", "MiniGrid-Empty-5x5-v0"}  # fmt: skip
+
+
+@functools.cache
+def _one_sentence_per_type() -> dict[int, list[str]]:
+    by_type: dict[int, list[str]] = {}
+    for row in LEVELS.rows:
+        by_type.setdefault(row.type_id, []).append(row.sentence)
+    return by_type
+
+
+@pytest.mark.parametrize("env_id", [
+    pytest.param(i, marks=() if i in _EVERY_TYPE_DEFAULT else pytest.mark.slow)
+    for i in jaxgrid.registered_ids()
+])  # fmt: skip
+def test_every_id_takes_a_sentence_of_every_type_its_contents_allow(env_id):
+    """Each registered id, given a sentence of each clause type (and a conjunction) that names
+    only what it can hold, builds and traces with it: the paper scenarios and HazardRooms
+    included. An id that holds nothing nameable allows none."""
+    contents = jaxgrid.make(env_id).contents()
+    said = []
+    for rows in _one_sentence_per_type().values():
+        said += [s for s in rows if contents.allows(L.parse(s))][:1]
+    if not said:
+        assert not contents.constrainable, env_id
+        return
+    pair = f"{said[0]} and {said[-1]}"
+    if L.parse(said[0]).type != L.parse(said[-1]).type and len(pair) <= L.MAX_CHARS:
+        said.append(pair)
+    for sentence in said:
+        env = jaxgrid.make(env_id, constraint=sentence)
+        obs = jax.eval_shape(env.reset, jax.random.PRNGKey(0))[1].observation
+        assert obs["constraint"].shape == (env.language_table.max_len,), sentence
