@@ -281,13 +281,12 @@ def test_a_paper_scenario_given_other_sentences_constrains_its_layouts_as_a_leve
     from jaxgrid.constrained import ConstrainedLevel
     from jaxgrid.scenarios import ScenarioLayouts
 
-    keys = jax.random.split(jax.random.PRNGKey(1), 512)
+    keys = jax.random.split(jax.random.PRNGKey(1), 256)
     cases = [
         ("TwoRooms-v0", dict(constraint="use the red door at most twice")),
         ("TwoRoomsLava-v0", dict(constraints=("never stand next to lava", "avoid the red door"),
                                  weights=(1, 3), lava="cost")),
         ("ThreeRoomsKey-v0", dict(constraint="after you pick up the key, do not use the red door")),
-        ("TwoRooms-v0", dict(constraint="do not use the red door", lava="cost")),
     ]  # fmt: skip
     for env_id, kwargs in cases:
         env = jaxgrid.make(env_id, **kwargs)
@@ -302,7 +301,10 @@ def test_a_paper_scenario_given_other_sentences_constrains_its_layouts_as_a_leve
         said = [int(np.flatnonzero((env.constraint_table()["tokens"] == t).all(1))[0])
                 for t in tokens]  # fmt: skip
         share = np.bincount(said, minlength=len(env.draw.sentences)) / len(keys)
-        np.testing.assert_allclose(share, env.draw.weights, atol=0.06)
+        np.testing.assert_allclose(share, env.draw.weights, atol=0.08)
+    # a sentence of the table with lava= (or weights=) leaves the paper's draw; alone, it keeps it
+    level = jaxgrid.make("TwoRooms-v0", constraint="do not use the red door", lava="cost")
+    assert isinstance(level, ConstrainedLevel) and level.lava == "cost"
     assert not isinstance(jaxgrid.make("TwoRooms-v0", constraint="avoid the red door"),
                           ConstrainedLevel)  # fmt: skip
 
