@@ -313,6 +313,8 @@ def _upgrade(env, saved: dict) -> dict | None:
     state = saved.get("env", {}).get("state") if isinstance(saved.get("env"), dict) else None
     if not isinstance(env, ConstrainedEnvironment) or not isinstance(state, dict):
         return None
+    if not isinstance(state.get("extras"), dict):
+        return None
     extras = env.upgrade_extras(state.get("extras"), state.get("grid"))
     if extras is None:
         return None

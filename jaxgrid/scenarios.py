@@ -177,7 +177,7 @@ class Scenario(ConstrainedEnvironment):
                     f"for the paper's templates with a door colour "
                     f"({len(table)} sentences, listed by jaxgrid.sentences.split_combinations"
                     f"('all', include_lava={self.has_lava}) and render); "
-                    f"jaxgrid.make(id, constraint=...) constrains its layouts with any other"
+                    "jaxgrid.make(id, constraint=...) constrains its layouts with any other"
                 )
 
     def constraint_table(self) -> dict:
