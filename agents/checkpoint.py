@@ -346,8 +346,7 @@ def restore(manager, step, abstract, shardings,
                           ) from error  # fmt: skip
 
     def zeros(a):
-        z = jnp.zeros(a.shape, a.dtype)
-        return z if getattr(a, "sharding", None) is None else jax.device_put(z, a.sharding)
+        return _placed(np.zeros(a.shape, a.dtype), a)
 
     print(f"{manager.directory}: checkpoint {step} predates {', '.join(added)}; "
           "starting from zeros", file=sys.stderr)  # fmt: skip

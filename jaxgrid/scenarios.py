@@ -255,9 +255,15 @@ class Scenario(ConstrainedEnvironment):
 
     NUM_UNIFORMS = 8
 
-    def generate(self, key: jax.Array) -> State:
+    def draw_layout(self, key: jax.Array):
+        """``(u, layout(u), agent direction)`` of an episode's key: the uniforms it spends
+        (the last one draws the constraint), the layout and the direction, which
+        :class:`ScenarioLayouts` draws too, so that both give the same layouts seed for seed."""
         u = jax.random.uniform(key, (self.NUM_UNIFORMS + 2,))
-        grid, agent, goal, nameable, present = self.layout(u)
+        return u, self.layout(u), G.randint(u[-2], 0, 4)
+
+    def generate(self, key: jax.Array) -> State:
+        u, (grid, agent, goal, nameable, present), direction = self.draw_layout(key)
         all_colours = jnp.arange(6)
         nameable_mask = jnp.any(all_colours[:, None] == nameable[None, :], axis=1)
         absent_mask = ~jnp.any(all_colours[:, None] == present[None, :], axis=1)
@@ -266,7 +272,6 @@ class Scenario(ConstrainedEnvironment):
         constraint, spec = sample_constraint(
             u[-1], table, nameable_mask, absent_mask, self.absent_colour_prob
         )
-        direction = G.randint(u[-2], 0, 4)
         extras = ScenarioExtras(
             constraint=constraint,
             # The paper's clauses never grow their zone: no dilation (static, from the table).
@@ -311,9 +316,8 @@ class ScenarioLayouts(Environment, kw_only=True):
         return self.scenario.contents()
 
     def generate(self, key: jax.Array) -> State:
-        u = jax.random.uniform(key, (self.scenario.NUM_UNIFORMS + 2,))  # as Scenario.generate
-        grid, agent, _, _, _ = self.scenario.layout(u)
-        return self.init_state(grid, agent, G.randint(u[-2], 0, 4), key)
+        _, (grid, agent, *_), direction = self.scenario.draw_layout(key)
+        return self.init_state(grid, agent, direction, key)
 
 
 def _next_to(grid: jax.Array, pos: jax.Array) -> jax.Array:
