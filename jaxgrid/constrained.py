@@ -167,6 +167,14 @@ class ConstrainedEnvironment(Environment):
             "sentence to HazardRooms-v0 or to a MiniGrid level instead"
         )
 
+    def with_table(
+        self, table: SentenceTable, weights, lava: str | None, name: str
+    ) -> ConstrainedEnvironment:
+        """This environment's layouts drawing from the rows of ``table`` that they can hold
+        (``constrain(..., constraints=table)``; ``name`` names it in errors). The default
+        refuses with a ``ValueError``: a table is no sentence of its own table."""
+        raise ValueError(f"{name} draws from its own table; give it sentences")
+
     def judge(self, before: State, after: State) -> tuple[State, jax.Array, jax.Array]:
         """``(after, cost, violation)``: the monitor advanced by the step ``before -> after``
         (the transition's result, before anything moves the agent on) and kept in ``after``."""
@@ -476,7 +484,7 @@ def constrain(
     where = name or type(env).__name__
     if isinstance(env, ConstrainedEnvironment):
         if isinstance(constraints, SentenceTable):
-            raise ValueError(f"{where} draws from its own table; give it sentences")
+            return env.with_table(constraints, weights, lava, where)
         draw = sentence_draw(
             env.contents(), where, constraint=constraint, constraints=constraints, weights=weights
         )

@@ -204,6 +204,12 @@ class Scenario(ConstrainedEnvironment):
         return constrain(ScenarioLayouts.of(self), constraints=tuple(given), weights=weights,
                          lava=lava, name=type(self).__name__)  # fmt: skip
 
+    def with_table(self, table, weights, lava, name) -> ConstrainedEnvironment:
+        """Its layouts constrained as a MiniGrid level is, by the rows of ``table`` they can
+        hold (a table is no sentence of the paper's)."""
+        return constrain(ScenarioLayouts.of(self), constraints=table, weights=weights,
+                         lava=lava, name=name)  # fmt: skip
+
     def upgrade_extras(self, saved: dict, grid: np.ndarray) -> ScenarioExtras | None:
         """Extras saved before the constraint and monitor moved into
         :class:`~jaxgrid.constrained.ConstrainedExtras` (a constraint of ``tokens``,

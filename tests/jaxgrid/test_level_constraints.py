@@ -172,7 +172,6 @@ def test_hazard_rooms_takes_sentences_and_weights_through_make():
         ("TwoRooms-v0", dict(constraint="use the green door at most twice"), "the word 'green'"),
         ("TwoRooms-v0", dict(constraint="avoid the red door", lava="soft"), "lava must be one of"),
         ("TwoRooms-v0", dict(constraints=("avoid lava",)), "the word 'lava'"),
-        ("TwoRooms-v0", dict(constraints=LEVELS), "its own table"),
         ("ThreeRoomsKey-v0", dict(sentences=("avoid lava",)), "not a sentence of ThreeRoomsKey"),
         ("HazardRooms-v0", dict(constraint="avoid lava", lava="lethal"), "always costs"),
         ("HazardRooms-v0", dict(constraint="avoid the green door"), "the word 'green'"),
@@ -307,6 +306,13 @@ def test_a_paper_scenario_given_other_sentences_constrains_its_layouts_as_a_leve
     assert isinstance(level, ConstrainedLevel) and level.lava == "cost"
     assert not isinstance(jaxgrid.make("TwoRooms-v0", constraint="avoid the red door"),
                           ConstrainedLevel)  # fmt: skip
+    # a sentence table: its rows that the layouts can hold (ThreeRooms-Key has a key, no lava)
+    drawn = jaxgrid.make("ThreeRoomsKey-v0", constraints=LEVELS)
+    assert isinstance(drawn, ConstrainedLevel) and isinstance(drawn.level, ScenarioLayouts)
+    sentences = drawn.draw.sentences
+    assert any("key" in s for s in sentences) and not any("lava" in s for s in sentences)
+    lava = jaxgrid.make("TwoRoomsLava-v0", constraints=LEVELS).draw.sentences
+    assert any("lava" in s for s in lava)
 
 
 # The scenarios and two MiniGrid levels in the default run; every id with -m slow.
