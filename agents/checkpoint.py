@@ -71,7 +71,10 @@ def make_manager(path: Path):
     options = ocp.CheckpointManagerOptions(
         max_to_keep=2, create=True, enable_async_checkpointing=False
     )
-    return ocp.CheckpointManager(path.absolute(), options=options)
+    # the one item's handler declared: its metadata (shapes, dtypes) reads before any restore
+    return ocp.CheckpointManager(
+        path.absolute(), options=options, item_handlers=ocp.StandardCheckpointHandler()
+    )
 
 
 def save_args(state):
@@ -360,8 +363,8 @@ def _upgraded_state(manager, step, target, upgrade):
     import orbax.checkpoint as ocp
 
     want = stored(target)
-    try:  # untargeted (dicts and lists) for the changed parts' layout, then with today's
-        raw = manager.restore(step, args=ocp.args.StandardRestore())  # containers elsewhere
+    try:  # the saved tree's shapes (metadata, no array read) where its keys differ from today's
+        raw = manager.item_metadata(step).tree
         saved = manager.restore(step, args=ocp.args.StandardRestore(_saved_layout(want, raw)))
     except Exception:  # orbax's and tensorstore's errors share no base class
         return None
@@ -389,11 +392,12 @@ def _placed(a, like):
 
 
 def _saved_layout(want, raw):
-    """A restore target for a checkpoint whose untargeted tree ``raw`` differs from ``want``
-    in some dicts' keys: ``want`` where they agree, ``raw``'s shapes where they differ."""
+    """A restore target for a checkpoint whose saved tree ``raw`` (its metadata) differs from
+    ``want`` in some dicts' keys: ``want`` where they agree, ``raw``'s shapes where they
+    differ."""
     if isinstance(want, dict) and isinstance(raw, dict):
         if set(want) != set(raw):
-            return jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), a.dtype), raw)
+            return jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), raw)
         return {k: _saved_layout(want[k], raw[k]) for k in want}
     return want
 
