@@ -4,12 +4,12 @@ Each level is a row of :data:`experiments.presets.EXPERIMENTS` (named by
 :data:`experiments.presets.BENCHMARK_LEVELS`), run by the one pipeline
 (:func:`experiments.pipeline.run_experiment`) with the methods asked for as its reward
 modes, in ``OUT/<level>/``; so every phase of every level resumes where it stopped after an
-interruption, however often, and a finished level is only read back. When all are done,
+interruption, however often, and a finished level is only read back. After every level,
 ``OUT/benchmark.md`` holds one table (IQM [95% bootstrap interval] over seeds of each
 method's final violations, success, return, episode cost, training violations and longest
 costly run, per level), ``OUT/benchmark.json`` the same figures with their per-seed values,
 and ``OUT/<level>.png`` one picture per level (success against training violations, a point
-per method with its intervals).
+per method with its intervals), of the levels done so far, the others named as pending.
 
 ::
 
@@ -106,7 +106,11 @@ def parse_args(argv: Sequence[str] | None = None) -> BenchmarkConfig:
 
 def run_benchmark(cfg: BenchmarkConfig) -> dict:
     """Run (or resume) every level of ``cfg`` in turn, then write the table and pictures;
-    returns ``{"levels": {level: results}, "table": ...}``."""
+    returns ``{"levels": {level: results}, "table": ...}``.
+
+    The table, ``benchmark.json`` and the pictures are written again after every level, with
+    the levels not yet done listed as pending: a run of many hours shows its finished levels
+    while it goes on, and after an interruption."""
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     results, walls = {}, {}
@@ -116,20 +120,29 @@ def run_benchmark(cfg: BenchmarkConfig) -> dict:
         start = time.perf_counter()
         results[level] = finished(cfg.experiment(level)) or run_experiment(cfg.experiment(level))
         walls[level] = time.perf_counter() - start
-    table = {level: {method: _figures(r["methods"][method]) for method in cfg.methods}
-             for level, r in results.items()}  # fmt: skip
+        summary, text = _write_table(cfg, results, walls)
+    print(text)
+    return {"levels": results, "table": summary}
+
+
+def _write_table(cfg: BenchmarkConfig, results: dict, walls: dict) -> tuple[dict, str]:
+    """``OUT/benchmark.json``, ``OUT/benchmark.md`` and a picture per level of the levels in
+    ``results``; the rest of ``cfg.levels`` is named as pending."""
+    out = Path(cfg.out)
+    pending = [level for level in cfg.levels if level not in results]
     summary = to_jsonable({"config": dataclasses.asdict(cfg), "columns": list(BENCHMARK_COLUMNS),
                "levels": {level: {"env_id": EXPERIMENTS[level].env_id,
-                                  "total_s": results[level]["timing"]["total_s"],
-                                  "this_call_s": walls[level], "methods": table[level]}
-                          for level in cfg.levels}})  # fmt: skip
+                                  "total_s": r["timing"]["total_s"],
+                                  "this_call_s": walls[level],
+                                  "methods": {m: _figures(r["methods"][m]) for m in cfg.methods}}
+                          for level, r in results.items()},
+               "pending": pending})  # fmt: skip
     write_json(out / "benchmark.json", summary)
     text = benchmark_table(summary)
     atomic_write(out / "benchmark.md", text.encode())
-    for level in cfg.levels:
+    for level in results:
         plot_benchmark_level(summary["levels"][level], level, out / f"{level}.png")
-    print(text)
-    return {"levels": results, "table": summary}
+    return summary, text
 
 
 def finished(cfg) -> dict | None:

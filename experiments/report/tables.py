@@ -325,7 +325,7 @@ def sweep_table(summary: dict) -> str:
 def benchmark_table(summary: Mapping) -> str:
     """The benchmark's ``summary`` (``OUT/benchmark.json``) as Markdown: a row per level and
     method, IQM [95% bootstrap interval] over seeds in each :data:`BENCHMARK_COLUMNS` column
-    (``n/a`` where the level's results hold no such figure)."""
+    (``n/a`` where the level's results hold no such figure), and the levels ``pending``."""
     columns = BENCHMARK_COLUMNS
     lines = ["| Level | Method | " + " | ".join(h for _, h, _ in columns) + " |",
              "|---|---|" + "---:|" * len(columns)]  # fmt: skip
@@ -349,4 +349,7 @@ def benchmark_table(summary: Mapping) -> str:
         monitor = config.get("constrained_cost") == "monitor"
         source = "the monitor's ground-truth cost" if monitor else "the checker's alarms"
         lines[-1] += f" {', '.join(switched)} learn from {source}."
+    pending = summary.get("pending") or []
+    if pending:
+        lines += ["", f"**Not yet run: {', '.join(pending)}** (the same command resumes)."]
     return "\n".join(lines) + "\n"

@@ -25,6 +25,14 @@ def _fake_results(cfg) -> dict:
     return {"methods": methods, "timing": {"total_s": 1.0}, "config": config}
 
 
+def _write_results(out, cfg) -> dict:
+    """:func:`_fake_results` of ``cfg``, written where the pipeline writes a level's."""
+    results = _fake_results(cfg)
+    (out / cfg.experiment).mkdir(parents=True, exist_ok=True)
+    (out / cfg.experiment / "results.json").write_text(json.dumps(results))
+    return results
+
+
 @pytest.mark.parametrize(("argv", "message"), [
     (["--levels", "two_rooms,nowhere"], "--levels: unknown"),
     (["--methods", "none,bogus"], "--methods: unknown"),
@@ -48,10 +56,7 @@ def test_every_level_runs_through_the_pipeline_then_one_table(tmp_path, monkeypa
 
     def run(cfg):
         ran.append(cfg)
-        results = _fake_results(cfg)
-        (tmp_path / "b" / cfg.experiment).mkdir(parents=True, exist_ok=True)
-        (tmp_path / "b" / cfg.experiment / "results.json").write_text(json.dumps(results))
-        return results
+        return _write_results(tmp_path / "b", cfg)
 
     monkeypatch.setattr(benchmark, "run_experiment", run)
     argv = ["--quick", "--no-progress", "--levels", "two_rooms,hazard_rooms", "--methods",
@@ -92,6 +97,42 @@ def test_the_table_names_the_cost_source_only_for_the_methods_it_changes(tmp_pat
     benchmark.main([*argv, str(tmp_path / "b"), "--methods", "shaped,saute,cpo"])
     table = (tmp_path / "b" / "benchmark.md").read_text()
     assert "saute, cpo learn from the checker's alarms." in table
+
+
+def test_the_table_shows_the_finished_levels_while_the_rest_are_pending(tmp_path, monkeypatch):
+    """An interruption during a level leaves the table, summary and pictures of the levels
+    done before it, the others named as pending; the resume completes them."""
+
+    def interrupted(cfg):
+        if cfg.experiment == "hazard_rooms":
+            raise KeyboardInterrupt
+        return _write_results(tmp_path / "b", cfg)
+
+    monkeypatch.setattr(benchmark, "run_experiment", interrupted)
+    argv = ["--quick", "--no-progress", "--levels", "two_rooms,hazard_rooms,lava_crossing",
+            "--methods", "none,shaped", "--seeds", "2", "--out", str(tmp_path / "b")]  # fmt: skip
+    with pytest.raises(KeyboardInterrupt):
+        benchmark.main(argv)
+    table = (tmp_path / "b" / "benchmark.md").read_text()
+    assert "| two_rooms | none |" in table and "| hazard_rooms" not in table
+    assert "Not yet run: hazard_rooms, lava_crossing" in table
+    summary = json.loads((tmp_path / "b" / "benchmark.json").read_text())
+    assert list(summary["levels"]) == ["two_rooms"]
+    assert summary["pending"] == ["hazard_rooms", "lava_crossing"]
+    assert (tmp_path / "b" / "two_rooms.png").is_file()
+    assert not (tmp_path / "b" / "hazard_rooms.png").exists()
+    ran = []
+
+    def run(cfg):
+        ran.append(cfg.experiment)
+        return _write_results(tmp_path / "b", cfg)
+
+    monkeypatch.setattr(benchmark, "run_experiment", run)
+    benchmark.main(argv)
+    assert ran == ["hazard_rooms", "lava_crossing"]  # two_rooms is read back
+    table = (tmp_path / "b" / "benchmark.md").read_text()
+    assert "Not yet run" not in table and "| lava_crossing | shaped |" in table
+    assert json.loads((tmp_path / "b" / "benchmark.json").read_text())["pending"] == []
 
 
 def test_a_resume_with_other_seeds_is_refused(tmp_path, monkeypatch):
