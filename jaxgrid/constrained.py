@@ -172,7 +172,8 @@ class ConstrainedEnvironment(Environment):
     ) -> ConstrainedEnvironment:
         """This environment's layouts drawing from the rows of ``table`` that they can hold
         (``constrain(..., constraints=table)``; ``name`` names it in errors). The default
-        refuses with a ``ValueError``: a table is no sentence of its own table."""
+        refuses with a ``ValueError``: such an environment draws from its own table, and takes
+        given sentences only (:meth:`with_sentences`)."""
         raise ValueError(f"{name} draws from its own table; give it sentences")
 
     def judge(self, before: State, after: State) -> tuple[State, jax.Array, jax.Array]:
