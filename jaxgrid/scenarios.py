@@ -201,13 +201,16 @@ class Scenario(ConstrainedEnvironment):
         table = _table_sentences(self.has_lava)
         if weights is None and lava is None and all(_spelled(s) in table for s in given):
             return self.replace(sentences=tuple(given))
-        return constrain(ScenarioLayouts.of(self), constraints=tuple(given), weights=weights,
-                         lava=lava, name=type(self).__name__)  # fmt: skip
+        return self._layouts_constrained(tuple(given), weights, lava, type(self).__name__)
 
     def with_table(self, table, weights, lava, name) -> ConstrainedEnvironment:
         """Its layouts constrained as a MiniGrid level is, by the rows of ``table`` they can
         hold (a table is no sentence of the paper's)."""
-        return constrain(ScenarioLayouts.of(self), constraints=table, weights=weights,
+        return self._layouts_constrained(table, weights, lava, name)
+
+    def _layouts_constrained(self, constraints, weights, lava, name) -> ConstrainedEnvironment:
+        """:class:`ScenarioLayouts` of this scenario through the one :func:`constrain`."""
+        return constrain(ScenarioLayouts.of(self), constraints=constraints, weights=weights,
                          lava=lava, name=name)  # fmt: skip
 
     def upgrade_extras(self, saved: dict, grid: np.ndarray) -> ScenarioExtras | None:
