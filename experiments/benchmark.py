@@ -108,9 +108,9 @@ def run_benchmark(cfg: BenchmarkConfig) -> dict:
     """Run (or resume) every level of ``cfg`` in turn, then write the table and pictures;
     returns ``{"levels": {level: results}, "table": ...}``.
 
-    The table, ``benchmark.json`` and the pictures are written again after every level, with
-    the levels not yet done listed as pending: a run of many hours shows its finished levels
-    while it goes on, and after an interruption."""
+    The table and ``benchmark.json`` are written again after every level, with the levels not
+    yet done listed as pending, and each level's picture once it is done: a run of many hours
+    shows its finished levels while it goes on, and after an interruption."""
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     results, walls = {}, {}
@@ -121,13 +121,14 @@ def run_benchmark(cfg: BenchmarkConfig) -> dict:
         results[level] = finished(cfg.experiment(level)) or run_experiment(cfg.experiment(level))
         walls[level] = time.perf_counter() - start
         summary, text = _write_table(cfg, results, walls)
+        plot_benchmark_level(summary["levels"][level], level, out / f"{level}.png")
     print(text)
     return {"levels": results, "table": summary}
 
 
 def _write_table(cfg: BenchmarkConfig, results: dict, walls: dict) -> tuple[dict, str]:
-    """``OUT/benchmark.json``, ``OUT/benchmark.md`` and a picture per level of the levels in
-    ``results``; the rest of ``cfg.levels`` is named as pending."""
+    """``OUT/benchmark.json`` and ``OUT/benchmark.md`` of the levels in ``results``; the rest
+    of ``cfg.levels`` is named as pending."""
     out = Path(cfg.out)
     pending = [level for level in cfg.levels if level not in results]
     summary = to_jsonable({"config": dataclasses.asdict(cfg), "columns": list(BENCHMARK_COLUMNS),
@@ -140,8 +141,6 @@ def _write_table(cfg: BenchmarkConfig, results: dict, walls: dict) -> tuple[dict
     write_json(out / "benchmark.json", summary)
     text = benchmark_table(summary)
     atomic_write(out / "benchmark.md", text.encode())
-    for level in results:
-        plot_benchmark_level(summary["levels"][level], level, out / f"{level}.png")
     return summary, text
 
 
