@@ -211,6 +211,7 @@ def cpo_step(
 
     before, pullback = jax.vjp(lambda x: surrogates(x)[0], flat)
     g, b = jax.vmap(pullback)(jnp.eye(2, dtype=flat.dtype))[0]
+
     def mean_kl(x):
         if fisher is None:
             return surrogates(x)[1]

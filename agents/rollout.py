@@ -120,7 +120,12 @@ def config_visits(states, env, c, before=None) -> jax.Array:
     """:func:`visits` with the novelty settings of the PPO config ``c``: the learner's start
     and every step ask it the same way."""
     return visits(
-        states, env.width, env.height, c.novelty_bonus != 0, c.novelty_changes, before,
+        states,
+        env.width,
+        env.height,
+        c.novelty_bonus != 0,
+        c.novelty_changes,
+        before,
         carrying=c.novelty_carrying,
     )
 

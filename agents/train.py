@@ -475,7 +475,13 @@ class Learner(struct.PyTreeNode):
         return (actions, memory) if given else actions
 
     def evaluate(
-        self, params, key, num_episodes: int, env=None, shielded: bool = True, hparams=None,
+        self,
+        params,
+        key,
+        num_episodes: int,
+        env=None,
+        shielded: bool = True,
+        hparams=None,
         track=None,
     ):
         """Per-episode results of :func:`agents.evaluation.play_episodes` (fixed ``key`` =

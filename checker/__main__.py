@@ -246,8 +246,7 @@ def run_window(args: CheckerRun, prog: str = PROG) -> dict:
         "args": dataclasses.asdict(args),
         "samples": samples,
         "dataset": data.meta,
-        "split_sizes": {"trainval": len(data) - history["test_rows"],
-                        "test": history["test_rows"]},  # fmt: skip
+        "split_sizes": {"trainval": len(data) - history["test_rows"], "test": history["test_rows"]},
         "history": history,
         "timing_s": {
             "collect": t_collect,

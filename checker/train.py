@@ -138,8 +138,7 @@ class CheckerTrainConfig:
             validate_window(self.window, self.lookahead)
         except ValueError as e:
             raise ValueError(f"CheckerTrainConfig.{e}") from None
-        minimum = {"epochs": 1, "batch_size": 1, "patience": 1, "seed": 0, "counterfactuals": 0,
-                   "blocked": 0}
+        minimum = dict(epochs=1, batch_size=1, patience=1, seed=0, counterfactuals=0, blocked=0)
         for name, low in minimum.items():
             value = getattr(self, name)
             if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < low:

@@ -72,8 +72,10 @@ def main(argv=None) -> dict:
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     if any(a == "--checker" or a.startswith("--checker=") for a in argv):
-        raise ValueError("--checker: label_timing trains one checker per labelling (lookahead "
-                         "1 and 0) and compares them; a trained checker has one labelling")
+        raise ValueError(
+            "--checker: label_timing trains one checker per labelling (lookahead "
+            "1 and 0) and compares them; a trained checker has one labelling"
+        )
     cfg = parse_args(argv, SCENARIO)
     out = Path(cfg.out or default_out(cfg.experiment))
     arms = {}

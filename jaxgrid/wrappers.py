@@ -119,7 +119,6 @@ class BatchedAutoReset(struct.PyTreeNode):
         info = {**ts.info, "final_observation": ts.observation}
         return states, ts.replace(observation=obs, info=info)
 
-
     def restart(self, states: State, obs: dict, mask: jax.Array) -> tuple[State, dict]:
         """Fresh episodes where ``mask`` (an episode ended by the caller, e.g. on a
         violation), keys split from each state's key as :meth:`step` does; other envs keep

@@ -229,7 +229,7 @@ def test_novelty_anneal_ends_the_bonus_early():
     np.testing.assert_allclose(values[end - 1], c.novelty_bonus / end, rtol=1e-5)
     c = ANNEALED
     whole = fast_jit(jax.vmap(make_learner(c).novelty_at))
-    before = fast_jit(jax.vmap(lambda u: (c.novelty_bonus * (1.0 - u / c.num_updates))))
+    before = fast_jit(jax.vmap(lambda u: c.novelty_bonus * (1.0 - u / c.num_updates)))
     u = jnp.arange(c.num_updates, dtype=jnp.int32)
     np.testing.assert_array_equal(whole(u), before(u).astype(np.float32))
     for bad in (0.0, 1.5, -0.1):

@@ -83,7 +83,6 @@ def test_out_is_required(capsys):
     assert exc.value.code == 2 and "--out" in capsys.readouterr().err
 
 
-
 def test_train_config_names_the_field_it_rejects():
     for kwargs, field in [({"epochs": 0}, "epochs"), ({"window": 0}, "window"),
                           ({"threshold": 1.0}, "threshold"), ({"seed": -1}, "seed"),

@@ -74,9 +74,22 @@ def test_a_checker_config_without_vocabulary_is_named_not_none():
 def test_memory_help_lists_every_flag_with_its_default(capsys):
     assert exit_code(MC.main, ["--help"]) == 0
     entries = help_entries(capsys.readouterr().out)
-    flags = {"--envs", "--steps", "--updates", "--batch-streams", "--guided", "--lookahead",
-             "--seed", "--late", "--memory", "--actions", "--json", "--out", "--overwrite",
-             "--kind"}
+    flags = {
+        "--envs",
+        "--steps",
+        "--updates",
+        "--batch-streams",
+        "--guided",
+        "--lookahead",
+        "--seed",
+        "--late",
+        "--memory",
+        "--actions",
+        "--json",
+        "--out",
+        "--overwrite",
+        "--kind",
+    }
     assert flags <= set(entries), sorted(entries)
     missing = [f for f, text in entries.items() if f != "--help" and "(default:" not in text]
     assert not missing, missing
@@ -132,9 +145,11 @@ def test_memory_checks_out_and_json_before_any_work(tmp_path, monkeypatch, capsy
     a_file.write_text("keep")
     with pytest.raises(ValueError, match="not writable"):
         MC.main(["--out", str(a_file / "sub")])
-    for flags, message in ((["--out", str(a_file)], "--out"),
-                           (["--json", str(tmp_path)], "is a directory, not a file"),
-                           (["--json", str(a_file / "r.json")], "is a file, not a directory")):
+    for flags, message in (
+        (["--out", str(a_file)], "--out"),
+        (["--json", str(tmp_path)], "is a directory, not a file"),
+        (["--json", str(a_file / "r.json")], "is a file, not a directory"),
+    ):
         assert exit_code(MC.main, flags) == 2
         assert message in stderr_text(capsys)
     with rundir.lock(tmp_path / "held", "holder-under-test"):

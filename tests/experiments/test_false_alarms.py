@@ -36,8 +36,14 @@ def test_counts_add_up(tmp_path):
     threshold = float(np.median(scores))
     path = tmp_path / "checker"
     chk.save(untrained.replace(threshold=threshold), path)
-    cfg = false_alarms.FalseAlarmConfig(checker=str(path), env_id="TwoRooms-v0", policy="oracle",
-                                        envs=8, steps=48, out=str(tmp_path / "fa.json"))
+    cfg = false_alarms.FalseAlarmConfig(
+        checker=str(path),
+        env_id="TwoRooms-v0",
+        policy="oracle",
+        envs=8,
+        steps=48,
+        out=str(tmp_path / "fa.json"),
+    )
     out = false_alarms.run(cfg)
     total, rows = out["total"], out["front"]
     assert total["windows"] == 8 * 48  # every window but the last, whose next step is unknown

@@ -180,8 +180,7 @@ def test_lock_of_a_dead_process_is_taken_over_with_a_message(tmp_path, capsys):
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True, check=True)  # fmt: skip
     pid = int(dead.stdout)
-    (tmp_path / rundir.LOCK_FILE).write_text(json.dumps({"pid": pid,
-                                                          "host": socket.gethostname()}))
+    (tmp_path / rundir.LOCK_FILE).write_text(json.dumps({"pid": pid, "host": socket.gethostname()}))
     with rundir.lock(tmp_path):
         assert "no longer runs" in capsys.readouterr().err
     # Another host's lock is never taken over: its pid cannot be checked from here.
