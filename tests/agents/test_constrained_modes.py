@@ -103,6 +103,7 @@ def test_a_modes_own_state_goes_through_checkpoints_and_only_there(tmp_path, tin
     np.testing.assert_array_equal(back.env.budget, 0.5)
 
 
+@pytest.mark.slow  # resume is tested in test_runner.py; a mode's state in checkpoints above
 def test_a_baseline_runs_and_resumes_through_the_runner(tmp_path):
     """``agents.runner.run`` trains the PID Lagrangian (its controller in the runner state)
     over seeds, and a run stopped after a chunk resumes to the same agents, bit for bit."""

@@ -287,6 +287,7 @@ def test_novelty_changes_pay_each_cell_once_per_episode():
     np.testing.assert_array_equal(rollout.novel(off[:, :1], off, w, h), [0.0, 0.0])
 
 
+@pytest.mark.slow  # a novelty variant of its own compile; the default bonus is tested above
 def test_novelty_without_carrying_pays_cells_only():
     """With ``carrying=False`` (``PPOConfig.novelty_carrying``) a cell walked again with an
     object in hand is not new; with the default (cell, carrying) pairs it is."""

@@ -88,13 +88,13 @@ def test_readme_line_1_trains_then_stops_cleanly(tmp_path):
     _check_resume_hint("two_rooms", text, tmp_path)
 
 
-# ThreeRoomsKey starts as TwoRoomsLava does (the same phases); HazardRooms collects its
-# memory checker's streams (a long compile) before its first bar: both under -m slow, with
-# the chunk tests below.
+# TwoRoomsLava and ThreeRoomsKey start as TwoRooms does above (the same phases); HazardRooms
+# collects its memory checker's streams (a long compile) before its first bar: all three
+# under -m slow, with the chunk tests below.
 @pytest.mark.parametrize(
     "module",
     [
-        "two_rooms_lava",
+        pytest.param("two_rooms_lava", marks=pytest.mark.slow),
         pytest.param("three_rooms_key", marks=pytest.mark.slow),
         pytest.param("hazard_rooms", marks=pytest.mark.slow),
     ],

@@ -20,7 +20,9 @@ NUM_ENVS = 24
 fast_jit = functools.partial(jax.jit, compiler_options={"xla_backend_optimization_level": 0})
 
 
-@pytest.mark.parametrize("env_id", ["TwoRooms-v0", "ThreeRoomsKey-v0"])
+@pytest.mark.parametrize(
+    "env_id", ["TwoRooms-v0", pytest.param("ThreeRoomsKey-v0", marks=pytest.mark.slow)]
+)
 def test_batched_auto_reset_equals_vmapped_auto_reset(env_id):
     """Same states and time steps through many resets, all envs truncating together (more
     ended episodes in one step than one masked chunk) included."""
