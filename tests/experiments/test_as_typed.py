@@ -91,14 +91,8 @@ def test_readme_line_1_trains_then_stops_cleanly(tmp_path):
 # TwoRoomsLava and ThreeRoomsKey start as TwoRooms does above (the same phases); HazardRooms
 # collects its memory checker's streams (a long compile) before its first bar: all three
 # under -m slow, with the chunk tests below.
-@pytest.mark.parametrize(
-    "module",
-    [
-        pytest.param("two_rooms_lava", marks=pytest.mark.slow),
-        pytest.param("three_rooms_key", marks=pytest.mark.slow),
-        pytest.param("hazard_rooms", marks=pytest.mark.slow),
-    ],
-)
+@pytest.mark.slow
+@pytest.mark.parametrize("module", ["two_rooms_lava", "three_rooms_key", "hazard_rooms"])
 def test_bare_experiment_starts_training_then_stops_cleanly(module, tmp_path):
     text = _start_then_interrupt(module, tmp_path, STARTED, timeout=120)
     _check_resume_hint(module, text, tmp_path)

@@ -35,7 +35,7 @@ def oracle_results(name: str, obey_constraint: bool = True, avoid_lava: bool = T
     return out, time.perf_counter() - t0
 
 
-# TwoRooms by default; the other scenarios' oracles take 25-35 s more per test, under -m slow
+# TwoRooms by default; the other scenarios' BFS runs add 14-25 s per test, under -m slow
 ORACLE_CASES = [n if n == "TwoRooms-v0" else pytest.param(n, marks=pytest.mark.slow)
                 for n in SCENARIOS]  # fmt: skip
 
