@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers.agents_cases import CHECKER_CONFIG, TINY, fast_jit
+from helpers.xla import batch_reset, batch_step
 
 import jaxgrid
 from agents.shield import make_shield
@@ -133,9 +134,11 @@ def test_a_checker_of_the_step_into_each_frame_judges_moves_only(memory_checker)
     assert make_shield(env, "checker", memory_checker).judged is None
     shield = make_shield(env, "checker", into)
     assert shield.judged == MOVES
-    states, ts = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(2), 16))
-    lang = into.encode_language(ts.observation["constraint"])
-    memory = into.stream_start(into.embed_states(ts.observation["image"]), lang)
+    states, ts = batch_reset(env, jax.random.split(jax.random.PRNGKey(2), 16))
+    lang = fast_jit(into.encode_language)(ts.observation["constraint"])
+    memory = fast_jit(lambda image: into.stream_start(into.embed_states(image), lang))(
+        ts.observation["image"]
+    )
     moves = np.asarray(fast_jit(shield.risk)(states, memory, lang))
     every = np.asarray(fast_jit(shield.replace(judged=None).risk)(states, memory, lang))
     others = [a for a in range(env.num_actions) if a not in MOVES]
@@ -158,15 +161,19 @@ def test_a_shield_of_actions_reads_each_candidate_with_its_action():
         dataclasses.replace(SMALL, actions=True), jax.random.PRNGKey(6), lookahead=0
     )
     shield = make_shield(env, "checker", into)
-    states, ts = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(2), 16))
-    lang = into.encode_language(ts.observation["constraint"])
+    states, ts = batch_reset(env, jax.random.split(jax.random.PRNGKey(2), 16))
+    lang = fast_jit(into.encode_language)(ts.observation["constraint"])
     memory = fast_jit(shield.start)(ts.observation)[0]
     risk = np.asarray(fast_jit(shield.risk)(states, memory, lang))
-    _, moved = jax.vmap(env.step)(states, jnp.full(16, MOVES[0], jnp.int32))
+    _, moved = batch_step(env, states, jnp.full(16, MOVES[0], jnp.int32))
+
+    @fast_jit
+    def probs(action):
+        emb = into.embed_states(moved.observation["image"], jnp.full(16, action, jnp.int32))
+        return jax.nn.sigmoid(into.candidate_logits(memory, emb[:, None], lang))[:, 0]
 
     def score(action):
-        emb = into.embed_states(moved.observation["image"], jnp.full(16, action, jnp.int32))
-        return np.asarray(jax.nn.sigmoid(into.candidate_logits(memory, emb[:, None], lang)))[:, 0]
+        return np.asarray(probs(action))
 
     np.testing.assert_allclose(risk[:, MOVES[0]], score(MOVES[0]), atol=1e-6)
     assert np.abs(risk[:, MOVES[0]] - score(NO_ACTION)).min() > 0

@@ -26,9 +26,11 @@ from helpers.agents_cases import (
     TINY,
     assert_counter_sees_compiles,
     count_compiles,
+    fast_jit,
     leaves,
 )
 from helpers.host_devices import ROOT, device_env
+from helpers.xla import batch_reset
 
 from agents import checkpoint, runner
 from agents.config import PPOConfig
@@ -388,11 +390,11 @@ def test_stages_count_the_walls_an_agent_has_passed_and_what_it_carries():
     env = jaxgrid.make("ThreeRoomsKey-v0")
     names, track = breakdown.stage_tracker(env, jax.random.PRNGKey(0))
     assert names == ["carried an object", "entered room 2", "entered room 3"]
-    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(1), 3))
+    states, _ = batch_reset(env, jax.random.split(jax.random.PRNGKey(1), 3))
     x = jnp.array([1, env.width // 3 + 1, 2 * env.width // 3 + 1])
     key_held = states.carrying.at[1].set(jnp.array([5, 0, 0], jnp.uint8))
     states = states.replace(agent_pos=states.agent_pos.at[:, 0].set(x), carrying=key_held)
-    flags = np.asarray(track(states))
+    flags = np.asarray(fast_jit(track)(states))
     assert flags.tolist() == [[False, False, False], [True, True, False], [False, True, True]]
     assert len(breakdown.stage_tracker(jaxgrid.make("TwoRooms-v0"), jax.random.PRNGKey(0))[0]) == 2
 

@@ -9,7 +9,7 @@ import jax
 import numpy as np
 
 import jaxgrid
-from helpers.xla import CHEAP
+from helpers.xla import batch_reset
 
 SCENARIOS = ("TwoRooms-v0", "TwoRoomsLava-v0", "ThreeRoomsKey-v0")
 # Episodes per scenario, for the layout checks and the oracle alike: the batch of resets is the
@@ -17,14 +17,10 @@ SCENARIOS = ("TwoRooms-v0", "TwoRoomsLava-v0", "ThreeRoomsKey-v0")
 N = 10_000
 SEED = 42
 
-# ``env`` is passed as a pytree (static config + the absent_colour_prob leaf), so each
-# scenario and split compiles once whatever absent_colour_prob is.
-_batch_reset = jax.jit(lambda env, keys: jax.vmap(env.reset)(keys), compiler_options=CHEAP)
-
 
 @functools.cache
 def resets(name: str, **overrides):
     """``(states, timesteps)`` of ``N`` resets (keys split from ``SEED``) as numpy arrays."""
     env = jaxgrid.make(name, **overrides)
-    out = _batch_reset(env, jax.random.split(jax.random.PRNGKey(SEED), N))
+    out = batch_reset(env, jax.random.split(jax.random.PRNGKey(SEED), N))
     return jax.tree.map(np.asarray, out)

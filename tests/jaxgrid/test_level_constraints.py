@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers.xla import CHEAP
+from helpers.xla import CHEAP, batch_reset
 
 import jaxgrid
 from jaxgrid import language as L
@@ -257,7 +257,7 @@ def test_a_paper_scenario_draws_the_sentences_of_its_table_it_is_given():
     whole = jaxgrid.make("TwoRoomsLava-v0", split="all").constraint_table()
     rows = [int(np.flatnonzero((whole["tokens"] == PAPER.tokenize(s)).all(1))[0]) for s in said]
     keys = jax.random.split(jax.random.PRNGKey(0), 256)
-    states, steps = jax.vmap(env.reset)(keys)
+    states, steps = batch_reset(env, keys)
     c = states.extras.constraint
     drawn = np.asarray(c.template_id)
     assert set(drawn.tolist()) == {int(whole["template_id"][r]) for r in rows}  # both, no other
@@ -269,7 +269,7 @@ def test_a_paper_scenario_draws_the_sentences_of_its_table_it_is_given():
                              jax.tree.leaves(whole["spec"]), strict=True):  # fmt: skip
             assert (np.asarray(got)[mine] == np.asarray(want)[r]).all()
     # the same scenario, its layouts unchanged: the grids of a default reset with the same keys
-    default, _ = jax.vmap(jaxgrid.make("TwoRoomsLava-v0").reset)(keys)
+    default, _ = batch_reset(jaxgrid.make("TwoRoomsLava-v0"), keys)
     assert (np.asarray(default.grid) == np.asarray(states.grid)).all()
 
 

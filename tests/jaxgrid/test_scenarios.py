@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers.scenario_resets import SCENARIOS, resets
-from helpers.xla import CHEAP
+from helpers.xla import CHEAP, batch_reset
 
 import jaxgrid
 from jaxgrid import language, sentences
@@ -391,7 +391,7 @@ def test_extras_of_the_older_layout_upgrade_to_the_episodes_own(name):
         return jax.lax.scan(step, states, acts)
 
     walk = jax.jit(walk, compiler_options=CHEAP)
-    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(4), 256))
+    states, _ = batch_reset(env, jax.random.split(jax.random.PRNGKey(4), 256))
     middle, _ = walk(states, actions[:60])
     older = _older_layout(env, middle.extras)
     upgraded = env.upgrade_extras(older, np.asarray(middle.grid))
@@ -415,7 +415,7 @@ def test_extras_of_the_older_layout_upgrade_to_the_episodes_own(name):
 
 def test_extras_of_no_row_of_the_table_are_refused_by_name():
     env = jaxgrid.make("TwoRooms-v0")
-    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
+    states, _ = batch_reset(env, jax.random.split(jax.random.PRNGKey(0), 4))
     old = _older_layout(env, states.extras)
     old["constraint"]["template_id"] = np.full(4, 99, np.int32)
     with pytest.raises(ValueError, match="no row of this environment's table"):
