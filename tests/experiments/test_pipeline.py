@@ -400,6 +400,7 @@ def test_collection_epsilon_mixes_uniform_actions_into_the_behaviour_agent():
     random over the 7 actions, whatever the agent prefers."""
     import jax
     import numpy as np
+    from helpers.xla import batch_reset
 
     import jaxgrid
     from agents.train import make_learner
@@ -407,17 +408,17 @@ def test_collection_epsilon_mixes_uniform_actions_into_the_behaviour_agent():
     config = PPOConfig(
         env_id="TwoRooms-v0", num_envs=8, num_steps=8, total_timesteps=64, eval_every=1
     )
-    params = make_learner(config).init(jax.random.key(0)).params
-    _, ts = jax.vmap(jaxgrid.make("TwoRooms-v0").reset)(jax.random.split(jax.random.key(1), 8))
+    params = jax.jit(make_learner(config).init)(jax.random.key(0)).params
+    _, ts = batch_reset(jaxgrid.make("TwoRooms-v0"), jax.random.split(jax.random.key(1), 8))
     obs = jax.tree.map(lambda x: np.repeat(np.asarray(x), 500, axis=0), ts.observation)
     key = jax.random.key(2)
     agent = checker_phases.AgentPolicy(config)
     np.testing.assert_array_equal(
-        agent(params, obs, None, key),
-        dataclasses.replace(agent, epsilon=0.0)(params, obs, None, key),
+        jax.jit(agent)(params, obs, None, key),
+        jax.jit(dataclasses.replace(agent, epsilon=0.0))(params, obs, None, key),
     )
     uniform = dataclasses.replace(agent, epsilon=1.0)
-    counts = np.bincount(uniform(params, obs, None, key), minlength=7)
+    counts = np.bincount(jax.jit(uniform)(params, obs, None, key), minlength=7)
     assert counts.sum() == 4000 and np.all(np.abs(counts / 4000 - 1 / 7) < 0.03), counts
 
 
