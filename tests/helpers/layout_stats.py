@@ -12,35 +12,27 @@
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import numpy as np
 import pytest
 from scipy.stats import chi2_contingency
 
-from helpers.xla import CHEAP
+from helpers.xla import batch_reset
 
 ALPHA = 1e-4
 
 # ------------------------------------------------------------------------------ sampling
 
 
-@functools.cache
-def reset_fn(env):
-    """``jit(vmap(env.reset))``, one per level configuration."""
-    return jax.jit(jax.vmap(env.reset), compiler_options=CHEAP)
-
-
 def jax_reset_states(env, n, seed=0):
     """``n`` jaxgrid reset states (keys split from ``PRNGKey(seed)``), as numpy arrays."""
-    states, _ = reset_fn(env)(jax.random.split(jax.random.PRNGKey(seed), n))
+    states, _ = batch_reset(env, jax.random.split(jax.random.PRNGKey(seed), n))
     return jax.tree.map(np.asarray, states)
 
 
 def jax_resets(env, n, seed=0):
     """``(grids, agent positions, agent directions)`` of ``n`` jaxgrid resets."""
-    states, _ = reset_fn(env)(jax.random.split(jax.random.PRNGKey(seed), n))
+    states, _ = batch_reset(env, jax.random.split(jax.random.PRNGKey(seed), n))
     return np.asarray(states.grid), np.asarray(states.agent_pos), np.asarray(states.agent_dir)
 
 

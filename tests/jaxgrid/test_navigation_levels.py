@@ -33,9 +33,9 @@ from helpers.layout_stats import (
     jax_resets,
     minigrid_resets,
     only,
-    reset_fn,
     same_occupancy,
 )
+from helpers.xla import batch_reset
 from minigrid.core.mission import MissionSpace
 from minigrid.envs import CrossingEnv, FourRoomsEnv
 from minigrid.minigrid_env import MiniGridEnv
@@ -435,7 +435,7 @@ def native_run(env_id, num, key_seed, num_steps=MAX_T, **kw):
     env = jaxgrid.make(env_id)
     mg = R.make_reference(env_id)
     cfg = R.config_env(env)
-    states, ts = reset_fn(env)(jax.random.split(jax.random.PRNGKey(key_seed), num))
+    states, ts = batch_reset(env, jax.random.split(jax.random.PRNGKey(key_seed), num))
     num_steps = min(env.max_steps, num_steps)
     seed = zlib.crc32(env_id.encode()) + key_seed
     actions = R.draw_actions(seed, num, num_steps)
