@@ -168,12 +168,9 @@ def test_a_shield_of_actions_reads_each_candidate_with_its_action():
     _, moved = batch_step(env, states, jnp.full(16, MOVES[0], jnp.int32))
 
     @fast_jit
-    def probs(action):
+    def score(action):
         emb = into.embed_states(moved.observation["image"], jnp.full(16, action, jnp.int32))
         return jax.nn.sigmoid(into.candidate_logits(memory, emb[:, None], lang))[:, 0]
-
-    def score(action):
-        return np.asarray(probs(action))
 
     np.testing.assert_allclose(risk[:, MOVES[0]], score(MOVES[0]), atol=1e-6)
     assert np.abs(risk[:, MOVES[0]] - score(NO_ACTION)).min() > 0
